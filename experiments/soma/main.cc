@@ -1,0 +1,31 @@
+// The `soma` executable: parse, compose, dispatch. All work happens in
+// framework/; see README.md for the commands.
+//
+//   soma                          run the default task on the default config
+//   soma <command> [overrides]    run a task (demo, ...): sugar for task=<command>
+//   soma -m a=1,2 b=x,y           a Hydra-style multirun sweep
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "framework/config/app.h"
+#include "framework/core/build_info.h"
+#include "framework/framework.h"
+#include "framework/registry/registry.h"
+#include "framework/tasks/task.h"
+
+int main(int argc, char** argv) {
+  soma::InitFramework();
+  std::vector<std::string> args(argv + 1, argv + argc);
+  // `soma <command> ...` selects the task config group option <command>.
+  if (!args.empty() && soma::GetRegistry<soma::Task>().Has(args.front())) {
+    args.front() = "task=" + args.front();
+  }
+  // The configs/ of the working directory, else the ones of the source tree
+  // this binary was built from.
+  std::string config_dir = "configs";
+  if (!std::filesystem::is_directory(config_dir)) {
+    config_dir = std::string(SOMA_SOURCE_DIR) + "/configs";
+  }
+  return soma::RunHydraApp(args, config_dir, "config", soma::RunConfiguredTask);
+}

@@ -1,0 +1,99 @@
+// Hydra-style composition (HYDRA.md sections 2-4 and 7): config search path,
+// config groups, defaults lists, packages, CLI overrides and the `hydra` node.
+#pragma once
+
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "framework/config/interpolation.h"
+#include "framework/config/node.h"
+#include "framework/config/override.h"
+
+namespace soma {
+
+/// The config search path: roots scanned for group directories and configs.
+/// Earlier roots win on name clashes.
+class ConfigRepository {
+ public:
+  /// `roots` are directories (a `file://` prefix is stripped; relative paths
+  /// are resolved against the CWD). A root that does not exist is a
+  /// ConfigError naming it.
+  explicit ConfigRepository(std::vector<std::string> roots);
+
+  const std::vector<std::filesystem::path>& roots() const { return roots_; }
+  /// True if any root has a directory `group` (e.g. "server/db").
+  bool IsGroup(std::string_view group) const;
+  /// Sorted option names (file stems of `*.yaml`) of a group over all roots.
+  std::vector<std::string> Options(std::string_view group) const;
+  /// Every group path (recursively, sorted), e.g. {"db", "server", "server/db"}.
+  std::vector<std::string> Groups() const;
+  /// The file for config path "group/option" or "name" (first root wins).
+  std::optional<std::filesystem::path> Find(std::string_view config_path) const;
+
+ private:
+  std::vector<std::filesystem::path> roots_;
+};
+
+enum class RunMode { kRun, kMultirun };
+
+std::string_view ToString(RunMode mode);  // "RUN" / "MULTIRUN"
+
+struct ComposeRequest {
+  /// Primary config dir first, then `--config-dir` entries. `hydra.searchpath`
+  /// of the primary config is appended during composition.
+  std::vector<std::string> search_path;
+  /// Primary config name without `.yaml` (may be empty: no primary config).
+  std::string config_name = "config";
+  /// Parsed CLI overrides in command-line order. In kRun mode a sweep is a
+  /// ConfigError ("Ambiguous value for argument ..."); in kMultirun the
+  /// caller composes each job with non-sweep overrides only, or composes the
+  /// sweep-level config with `allow_sweeps = true` (sweep overrides are then
+  /// skipped and only recorded in hydra.overrides.task).
+  std::vector<Override> overrides;
+  RunMode mode = RunMode::kRun;
+  bool allow_sweeps = false;
+  std::string job_name = "soma";
+};
+
+/// One entry of the final defaults list (`--info defaults`).
+struct DefaultsListEntry {
+  std::string config_path;  // "db/mysql", "config", or "_self_" owner
+  std::string package;      // "" for the global package
+  std::string parent;       // config that listed it ("" for the primary)
+  bool is_self = false;     // the `_self_` of `config_path`
+  std::string group;        // "db" ("" for non-group configs)
+  std::string option;       // "mysql"
+};
+
+struct ComposeResult {
+  /// The composed tree *including* the `hydra` node (hydra.runtime.choices,
+  /// hydra.overrides.*, hydra.job.name, hydra.mode, hydra.runtime.
+  /// config_sources, and the built-in hydra defaults: run.dir, sweep.dir,
+  /// sweep.subdir, output_subdir, job.chdir, launcher.n_jobs,
+  /// sweeper.params, searchpath). Struct mode is on.
+  ConfigNode root;
+  std::vector<DefaultsListEntry> defaults;
+  /// group@package (or group) -> selected option, in defaults-list order.
+  std::vector<std::pair<std::string, std::string>> choices;
+  /// The search path actually used (incl. hydra.searchpath entries).
+  std::vector<std::string> search_path;
+};
+
+/// Composes a configuration. Throws ConfigError with Hydra's wording for
+/// every error listed in HYDRA.md section 3 and 4.
+ComposeResult Compose(const ComposeRequest& request);
+
+/// The task config: the composed root without the `hydra` node.
+ConfigNode TaskConfig(const ConfigNode& composed_root);
+
+/// `--info defaults` text (one line per final defaults-list entry).
+std::string FormatDefaultsList(const ComposeResult& result);
+
+/// Instantiates nothing: only the built-in `hydra` node defaults.
+ConfigNode HydraDefaults();
+
+}  // namespace soma

@@ -1,0 +1,52 @@
+#include "framework/framework.h"
+
+#include <algorithm>
+#include <mutex>
+
+#include <fmt/format.h>
+
+#include "framework/config/interpolation.h"
+#include "framework/core/random.h"
+#include "framework/registry/registry.h"
+#include "framework/tasks/task.h"
+
+namespace soma {
+namespace {
+
+/// `${soma.sweep_id:}`: a short stable id of a multirun (primary config name
+/// and its task overrides, sorted), so that re-running the same `-m` command
+/// lands in the same sweep directory and resumes from its ledger.
+ConfigNode SweepIdResolver(const std::vector<ConfigNode>& args,
+                           const ResolverCall& call) {
+  std::vector<std::string> parts;
+  if (const ConfigNode* name = call.root->FindPath("hydra.job.config_name");
+      name && name->IsString()) {
+    parts.push_back("cn=" + name->AsString());
+  }
+  if (const ConfigNode* task = call.root->FindPath("hydra.overrides.task");
+      task && task->IsList()) {
+    std::vector<std::string> overrides;
+    for (const ConfigNode& item : task->items()) overrides.push_back(item.text());
+    std::sort(overrides.begin(), overrides.end());
+    parts.insert(parts.end(), overrides.begin(), overrides.end());
+  }
+  const std::string joined = fmt::format("{}", fmt::join(parts, "\n"));
+  return ConfigNode::LiteralString(fmt::format("{:016x}", Fnv1a64(joined)).substr(0, 10));
+}
+
+}  // namespace
+
+void RegisterBuiltins() {
+  DefaultResolvers().Register("soma.sweep_id", SweepIdResolver);
+  RegisterTasks();
+}
+
+void InitFramework() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    RegisterBuiltins();
+    FreezeRegistries();
+  });
+}
+
+}  // namespace soma

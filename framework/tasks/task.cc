@@ -1,0 +1,27 @@
+#include "framework/tasks/task.h"
+
+#include "framework/core/error.h"
+#include "framework/registry/registry.h"
+
+namespace soma {
+
+void RegisterDemoTask(Registry<Task>& registry);  // demo_task.cc
+
+void RegisterTasks() {
+  RegisterDemoTask(GetRegistry<Task>());
+  RegisterConfigGroup<Task>("task");
+}
+
+void RunConfiguredTask(const ConfigNode& cfg, RunContext& ctx) {
+  const ConfigNode* task_node = cfg.Find("task");
+  if (task_node == nullptr) {
+    throw ConfigError(
+        "Invalid configuration. The config has no 'task' node; select one "
+        "with task=<name> or a command (soma <command>)");
+  }
+  BuildContext build(ctx.seed, ctx.output_dir.string());
+  std::unique_ptr<Task> task = Instantiate<Task>(*task_node, build);
+  task->Run(cfg, ctx);
+}
+
+}  // namespace soma

@@ -1,0 +1,32 @@
+// Tasks: what one job of `soma` runs. `soma <command>` selects
+// `task=<command>`; the task's options live under `task:` in the config.
+#pragma once
+
+#include <string_view>
+
+#include "framework/config/app.h"
+#include "framework/config/node.h"
+
+namespace soma {
+
+/// A runnable job (demo now; synth, train, label, eval, solve as their
+/// modules land). Implementations are thin: decode options, call the
+/// framework, report metrics.
+class Task {
+ public:
+  static constexpr std::string_view kRegistryName = "task";
+  virtual ~Task() = default;
+
+  /// `cfg` is the whole resolved task config (the task's own options are
+  /// `cfg.at("task")`); write outputs under `ctx.output_dir`.
+  virtual void Run(const ConfigNode& cfg, RunContext& ctx) = 0;
+};
+
+/// Registers the built-in tasks and the `task` config group.
+void RegisterTasks();
+
+/// The TaskFn of the `soma` executable: builds `cfg.task` through the
+/// registry and runs it.
+void RunConfiguredTask(const ConfigNode& cfg, RunContext& ctx);
+
+}  // namespace soma

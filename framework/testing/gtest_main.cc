@@ -1,0 +1,11 @@
+// The gtest main of every test executable: initialises the framework once
+// (registries, resolvers) like the `soma` executable does.
+#include <gtest/gtest.h>
+
+#include "framework/framework.h"
+
+int main(int argc, char** argv) {
+  ::testing::InitGoogleTest(&argc, argv);
+  soma::InitFramework();
+  return RUN_ALL_TESTS();
+}

@@ -1,0 +1,23 @@
+// Test helpers shared by every test executable (test-only library).
+#pragma once
+
+#include <filesystem>
+#include <string>
+
+namespace soma::testing {
+
+/// A fresh empty directory unique to the running test:
+/// `$TMPDIR/somalab_tests/<suite>.<test>.<pid>/`, removed at process start.
+std::filesystem::path CreateTestDir();
+
+/// The project root (SOMA_SOURCE_DIR from the environment or the build).
+std::filesystem::path SourceDir();
+
+/// `../shared/data` beside the project root.
+std::filesystem::path SharedDataDir();
+
+/// Writes `contents` to `dir/relative` (creating parent directories).
+void WriteTextFile(const std::filesystem::path& dir, const std::string& relative,
+                   const std::string& contents);
+
+}  // namespace soma::testing

@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Installs the Debian packages somalab needs. Idempotent: when every package is
+# already installed it only runs one dpkg query (well under a second).
+set -euo pipefail
+
+PACKAGES=(
+  build-essential cmake git pkg-config ccache
+  libtorch-dev libeigen3-dev libyaml-cpp-dev libceres-dev libhdf5-dev
+  libfmt-dev libgtest-dev libgmock-dev libbenchmark-dev
+  libopenblas-dev libopenblas0-openmp
+  python3 python3-h5py python3-numpy
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if ((${#missing[@]} == 0)); then
+  exit 0
+fi
+
+echo "[install_deps] installing: ${missing[*]}"
+SUDO=""
+if [[ $(id -u) -ne 0 ]]; then SUDO="sudo"; fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+# Make OpenBLAS (OpenMP flavour) the system BLAS/LAPACK that libtorch resolves
+# through libblas.so.3; see ../shared/TOOLCHAIN.md section 1.2.
+for alt in libblas.so.3-x86_64-linux-gnu liblapack.so.3-x86_64-linux-gnu; do
+  target=$(update-alternatives --list "$alt" 2>/dev/null | grep openblas-openmp | head -1 || true)
+  if [[ -n "$target" ]]; then $SUDO update-alternatives --set "$alt" "$target" >/dev/null; fi
+done
+echo "[install_deps] done"

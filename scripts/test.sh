@@ -1,0 +1,7 @@
+#!/usr/bin/env bash
+# README command 2: installs what is missing, builds everything and runs the
+# whole test suite (CTest; tests read real data from ../shared/data).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/build.sh
+ctest --test-dir build --output-on-failure -j"$(nproc)" --timeout 600
