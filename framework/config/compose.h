@@ -77,7 +77,9 @@ struct ComposeResult {
   /// sweeper.params, searchpath). Struct mode is on.
   ConfigNode root;
   std::vector<DefaultsListEntry> defaults;
-  /// group@package (or group) -> selected option, in defaults-list order.
+  /// group@package (or group) -> selected option, in defaults-list order
+  /// ("null" for a null selection; option lists are not choices, as in
+  /// Hydra). hydra.runtime.choices holds the same with null nodes.
   std::vector<std::pair<std::string, std::string>> choices;
   /// The search path actually used (incl. hydra.searchpath entries).
   std::vector<std::string> search_path;
@@ -93,7 +95,11 @@ ConfigNode TaskConfig(const ConfigNode& composed_root);
 /// `--info defaults` text (one line per final defaults-list entry).
 std::string FormatDefaultsList(const ComposeResult& result);
 
-/// Instantiates nothing: only the built-in `hydra` node defaults.
+/// The built-in `hydra` node defaults, as a root map with the single key
+/// `hydra` (merged before every config file): run/sweep dirs, output_subdir,
+/// mode RUN, job (name and id `???` until composition fills them),
+/// launcher.n_jobs, sweeper.params, empty overrides/choices, runtime.cwd and
+/// runtime.version. Instantiates nothing.
 ConfigNode HydraDefaults();
 
 }  // namespace soma

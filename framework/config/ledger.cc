@@ -182,13 +182,23 @@ void Ledger::Save() const {
 }
 
 std::vector<SummaryRow> SummarizeBySeed(const std::vector<LedgerEntry>& entries) {
+  // Overrides shared by every job (e.g. task.steps=5 on the command line) say
+  // nothing about a row; only the ones that vary across the sweep are shown.
+  std::map<std::string, size_t> occurrences;
+  for (const LedgerEntry& e : entries) {
+    for (const std::string& o : std::set<std::string>(e.overrides.begin(), e.overrides.end())) {
+      ++occurrences[o];
+    }
+  }
   std::vector<SummaryRow> rows;
   std::map<std::vector<std::string>, size_t> index;
   std::map<size_t, std::map<std::string, std::vector<double>>> values;
   for (const LedgerEntry& e : entries) {
     std::vector<std::string> key;
     for (const std::string& o : e.overrides) {
-      if (!IsSeedOverride(o)) key.push_back(o);
+      if (IsSeedOverride(o)) continue;
+      if (entries.size() > 1 && occurrences[o] == entries.size()) continue;
+      key.push_back(o);
     }
     auto [it, inserted] = index.emplace(key, rows.size());
     if (inserted) {

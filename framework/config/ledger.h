@@ -63,6 +63,7 @@ struct SummaryRow {
 
 /// Groups ledger entries by their non-seed overrides (keys `seed`, `+seed`,
 /// `++seed`), in first-appearance order, aggregating metrics of done jobs.
+/// Overrides common to every job are left out of the row keys.
 std::vector<SummaryRow> SummarizeBySeed(const std::vector<LedgerEntry>& entries);
 
 /// Writes `summary.csv` and `summary.md` (mean ± std over seeds) into
