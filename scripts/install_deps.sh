@@ -7,7 +7,7 @@ PACKAGES=(
   build-essential cmake git pkg-config ccache
   libtorch-dev libeigen3-dev libyaml-cpp-dev libceres-dev libhdf5-dev
   libfmt-dev libgtest-dev libgmock-dev libbenchmark-dev
-  libopenblas-dev libopenblas0-openmp
+  libopenblas-dev libopenblas0-openmp zlib1g-dev
   python3 python3-h5py python3-numpy
 )
 

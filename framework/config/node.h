@@ -52,13 +52,13 @@ class ConfigNode {
   // Convenience constructors (implicit on purpose for literals in tests and
   // call-site overrides: `node.Set("lr", 0.3)`). The string constructors
   // behave like FromString() (OmegaConf assignment semantics).
-  ConfigNode(bool value);                // NOLINT(google-explicit-constructor)
-  ConfigNode(int value);                 // NOLINT(google-explicit-constructor)
-  ConfigNode(int64_t value);             // NOLINT(google-explicit-constructor)
-  ConfigNode(double value);              // NOLINT(google-explicit-constructor)
-  ConfigNode(const char* value);         // NOLINT(google-explicit-constructor)
-  ConfigNode(std::string value);         // NOLINT(google-explicit-constructor)
-  ConfigNode(std::string_view value);    // NOLINT(google-explicit-constructor)
+  ConfigNode(bool value);              // NOLINT(google-explicit-constructor)
+  ConfigNode(int value);               // NOLINT(google-explicit-constructor)
+  ConfigNode(int64_t value);           // NOLINT(google-explicit-constructor)
+  ConfigNode(double value);            // NOLINT(google-explicit-constructor)
+  ConfigNode(const char* value);       // NOLINT(google-explicit-constructor)
+  ConfigNode(std::string value);       // NOLINT(google-explicit-constructor)
+  ConfigNode(std::string_view value);  // NOLINT(google-explicit-constructor)
 
   static ConfigNode Null();
   static ConfigNode Missing();

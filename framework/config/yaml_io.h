@@ -5,25 +5,26 @@
 // plus OmegaConf's float tweak, minus timestamps); see HYDRA.md section 1:
 //   null: `null Null NULL ~` and empty; bool: `true/false/yes/no/on/off` in
 //   case variants (y/n are strings); int: decimal with `_`, `0b`, `0x`, octal
-//   `0o17` and `017`, sexagesimal `1:20`; float: `1.5`, `1e-3`, `1_000.5`,
-//   `.inf`, `.nan`, sexagesimal floats. Quoted scalars are strings. `???` is
-//   Missing; strings with an unescaped `${` are interpolations.
+//   `017` (YAML 1.1 has no `0o17`: a string), sexagesimal `1:20`; float:
+//   `1.5`, `1e-3`, `1_000.5`, `.inf`, `.nan`, sexagesimal floats. Quoted
+//   scalars are strings. `???` is Missing; strings with an unescaped `${` are
+//   interpolations.
 #pragma once
+
+#include "framework/config/node.h"
 
 #include <filesystem>
 #include <string>
 #include <string_view>
 
-#include "framework/config/node.h"
-
 namespace soma {
 
 /// A parsed config file: its content and its `# @package` directive.
 struct ConfigFile {
-  ConfigNode content;           // a map (empty map for an empty file)
-  std::string package;          // from `# @package <pkg>`, empty if none
+  ConfigNode content;   // a map (empty map for an empty file)
+  std::string package;  // from `# @package <pkg>`, empty if none
   bool has_package_directive = false;
-  std::string path;             // file path as given
+  std::string path;  // file path as given
 };
 
 /// Parses YAML text. `source_name` is used for SourceLocation and errors.
