@@ -5,8 +5,11 @@
 
 #include <fmt/format.h>
 
+#include "framework/body/body_source.h"
 #include "framework/config/interpolation.h"
 #include "framework/core/random.h"
+#include "framework/model/register.h"
+#include "framework/motion/motion_source.h"
 #include "framework/registry/registry.h"
 #include "framework/tasks/task.h"
 
@@ -38,6 +41,9 @@ ConfigNode SweepIdResolver(const std::vector<ConfigNode>& args,
 
 void RegisterBuiltins() {
   DefaultResolvers().Register("soma.sweep_id", SweepIdResolver);
+  RegisterBodySources();
+  RegisterMotionSources();
+  RegisterModelComponents();
   RegisterTasks();
 }
 

@@ -5,10 +5,18 @@
 
 namespace soma {
 
-void RegisterDemoTask(Registry<Task>& registry);  // demo_task.cc
+// Each task registers itself from its own file.
+void RegisterCoverageTask(Registry<Task>& registry);
+void RegisterDemoTask(Registry<Task>& registry);
+void RegisterInspectTask(Registry<Task>& registry);
+void RegisterRealismTask(Registry<Task>& registry);
 
 void RegisterTasks() {
-  RegisterDemoTask(GetRegistry<Task>());
+  Registry<Task>& registry = GetRegistry<Task>();
+  RegisterCoverageTask(registry);
+  RegisterDemoTask(registry);
+  RegisterInspectTask(registry);
+  RegisterRealismTask(registry);
   RegisterConfigGroup<Task>("task");
 }
 

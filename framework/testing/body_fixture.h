@@ -1,0 +1,12 @@
+// Shared test fixtures: bodies built once per test process (building the
+// procedural body costs ~0.2 s in Release, several seconds in Debug).
+#pragma once
+
+#include "framework/body/body_model.h"
+
+namespace soma::testing {
+
+/// The default procedural body (MakeProceduralBody with default options).
+const BodyModel& ProceduralBody();
+
+}  // namespace soma::testing

@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# Bounded libFuzzer session for the C3D parser (ASan + UBSan), seeded with the
+# shared C3D files (first 64 KiB of each) and the regression inputs in
+# tests/fuzz/corpus/. The growing corpus is kept in build-fuzz/c3d_corpus.
+#
+#   scripts/fuzz_c3d.sh [seconds=60]
+#
+# Exit 0: no finding, or clang/libFuzzer unavailable (skipped with a message).
+# Exit 1: a crash, leak, timeout or sanitizer report; the input is saved in
+# build-fuzz/c3d_artifacts/ (copy it to tests/fuzz/corpus/ once fixed).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+seconds="${1:-60}"
+build="${SOMA_FUZZ_BUILD_DIR:-build-fuzz}"
+
+if ! command -v clang >/dev/null 2>&1 || ! command -v clang++ >/dev/null 2>&1; then
+  echo "[fuzz_c3d] clang not found; skipping the C3D fuzzer"
+  exit 0
+fi
+probe="$(mktemp -d)"
+trap 'rm -rf "$probe"' EXIT
+echo 'extern "C" int LLVMFuzzerTestOneInput(const unsigned char*, unsigned long) { return 0; }' \
+  >"$probe/probe.cc"
+if ! clang++ -fsanitize=fuzzer,address,undefined "$probe/probe.cc" -o "$probe/probe" \
+  >/dev/null 2>&1; then
+  echo "[fuzz_c3d] libFuzzer runtime not available (Debian: libclang-rt-14-dev); skipping"
+  exit 0
+fi
+
+log="$probe/build.log"
+if ! CC=clang CXX=clang++ cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+  -DSOMA_BUILD_TESTS=ON -DSOMA_BUILD_FUZZERS=ON >"$log" 2>&1 ||
+  ! cmake --build "$build" --target c3d_fuzzer -j"$(nproc)" >>"$log" 2>&1; then
+  tail -n 40 "$log"
+  echo "[fuzz_c3d] building the fuzzer failed"
+  exit 1
+fi
+
+seeds="$build/c3d_seeds"
+corpus="$build/c3d_corpus"
+artifacts="$build/c3d_artifacts/"
+rm -rf "$seeds"
+mkdir -p "$seeds" "$corpus" "$artifacts"
+for f in ../shared/data/c3d/*.c3d; do
+  [[ -e "$f" ]] && head -c 65536 "$f" >"$seeds/$(basename "$f")"
+done
+if compgen -G "tests/fuzz/corpus/*" >/dev/null; then
+  cp tests/fuzz/corpus/* "$seeds/"
+fi
+
+echo "[fuzz_c3d] fuzzing ParseC3d for ${seconds}s"
+if ! "$build/tests/fuzz/c3d_fuzzer" -max_total_time="$seconds" -max_len=65536 \
+  -rss_limit_mb=2048 -timeout=10 -dict=tests/fuzz/c3d.dict \
+  -artifact_prefix="$artifacts" -print_final_stats=1 "$corpus" "$seeds" \
+  >"$build/c3d_fuzz.log" 2>&1; then
+  grep -v '^#' "$build/c3d_fuzz.log" | tail -n 40
+  echo "[fuzz_c3d] FINDING: see $artifacts and $build/c3d_fuzz.log"
+  exit 1
+fi
+grep -E '^#[0-9]+[[:space:]]+DONE|stat::number_of_executed_units' "$build/c3d_fuzz.log" || true
+echo "[fuzz_c3d] no crashes"
