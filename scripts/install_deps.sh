@@ -4,7 +4,7 @@
 set -euo pipefail
 
 PACKAGES=(
-  build-essential cmake git pkg-config ccache clang-format
+  build-essential cmake git pkg-config ccache clang-format clang libclang-rt-14-dev
   libtorch-dev libeigen3-dev libyaml-cpp-dev libceres-dev libhdf5-dev
   libfmt-dev libgtest-dev libgmock-dev libbenchmark-dev
   libopenblas-dev libopenblas0-openmp zlib1g-dev

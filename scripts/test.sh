@@ -5,3 +5,5 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh
 ctest --test-dir build --output-on-failure -j"$(nproc)" --timeout 600
+# A bounded libFuzzer run of the C3D reader (clang; crashes fail the run).
+bash scripts/fuzz_c3d.sh 30

@@ -1,0 +1,107 @@
+// libFuzzer target for the C3D reader: ParseC3d on arbitrary bytes must
+// either return or throw soma::Error; never crash, hang or over-allocate.
+// When a parse succeeds, the result must be self-consistent and survive an
+// EncodeC3d → ParseC3d round trip (points and validity unchanged).
+//
+// Build: scripts/fuzz_c3d.sh (clang, -fsanitize=fuzzer,address,undefined).
+#include "framework/core/error.h"
+#include "framework/core/logging.h"
+#include "framework/io/c3d.h"
+
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <cstdlib>
+#include <span>
+#include <vector>
+
+namespace {
+
+// A broken invariant is a finding: abort so libFuzzer saves the input.
+void Require(bool condition) {
+  if (!condition) std::abort();
+}
+
+bool SameFloat(float a, float b) {
+  return a == b || (std::isnan(a) && std::isnan(b));
+}
+
+void CheckInvariants(const soma::C3dData& d) {
+  Require(d.num_frames >= 0 && d.num_points >= 0);
+  Require(d.points.rows() == d.num_frames);
+  Require(d.points.cols() == 3 * static_cast<Eigen::Index>(d.num_points));
+  Require(d.residuals.rows() == d.num_frames);
+  Require(d.residuals.cols() == d.num_points);
+  Require(d.valid.rows() == d.num_frames && d.valid.cols() == d.num_points);
+  Require(d.labels.size() == static_cast<size_t>(d.num_points));
+  Require(d.descriptions.size() == static_cast<size_t>(d.num_points));
+  for (Eigen::Index f = 0; f < d.points.rows(); ++f) {
+    for (Eigen::Index p = 0; p < d.residuals.cols(); ++p) {
+      if (d.valid(f, p)) {
+        Require(d.residuals(f, p) >= 0.0f);
+        Require(d.Point(f, p).allFinite());
+      } else {
+        Require(d.residuals(f, p) == -1.0f);
+      }
+    }
+  }
+}
+
+void CheckRoundTrip(const soma::C3dData& d) {
+  std::vector<uint8_t> encoded;
+  try {
+    encoded = soma::EncodeC3d(d);
+  } catch (const soma::Error&) {
+    return;  // e.g. a zero frame rate cannot be written: not a reader bug
+  }
+  const soma::C3dData r = soma::ParseC3d(encoded, "roundtrip");  // must work
+  Require(r.num_frames == d.num_frames && r.num_points == d.num_points);
+  Require(r.labels == d.labels);
+  Require((r.valid == d.valid).all());
+  for (Eigen::Index i = 0; i < d.points.size(); ++i) {
+    Require(SameFloat(r.points.data()[i], d.points.data()[i]));
+  }
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerInitialize(int* /*argc*/, char*** /*argv*/) {
+  soma::Logger::SetConsoleLevel(soma::LogLevel::kError);
+  return 0;
+}
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  const std::span<const uint8_t> bytes(data, size);
+  try {
+    const soma::C3dData d = soma::ParseC3d(bytes, "fuzz");
+    CheckInvariants(d);
+    CheckRoundTrip(d);
+  } catch (const soma::Error&) {
+  }
+  try {
+    soma::C3dReadOptions options;
+    options.allow_truncated = true;
+    options.read_analogs = true;
+    const soma::C3dData d = soma::ParseC3d(bytes, "fuzz", options);
+    CheckInvariants(d);
+    for (Eigen::Index i = 0; i < d.analog.samples.size(); ++i) {
+      (void)d.analog.samples.data()[i];
+    }
+    for (const soma::C3dGroup& g : d.groups) {
+      for (const soma::C3dParameter& p : g.parameters) {
+        (void)p.NumElements();
+        if (p.type == soma::C3dParameterType::kChar) {
+          (void)p.AsStrings();
+        } else {
+          (void)p.AsFloats();
+          try {
+            (void)p.AsInts();
+          } catch (const soma::IoError&) {
+          }
+        }
+      }
+    }
+  } catch (const soma::Error&) {
+  }
+  return 0;
+}
