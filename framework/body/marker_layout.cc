@@ -1,0 +1,886 @@
+#include "framework/body/marker_layout.h"
+
+#include "framework/body/json.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <set>
+
+namespace soma {
+namespace {
+
+// ---------------------------------------------------------------------------
+// Anatomical placement rules (rest T-pose frame: +X left, -Y forward, +Z up).
+// The skin point is where the ray from lerp(joint_a, joint_b, t) along `dir`
+// leaves the body; the marker vertex is the hit triangle's nearest vertex.
+// `mirror` rules also define the other side's label (first letter L <-> R,
+// joints mirrored, x negated).
+
+struct Rule {
+  const char* label;
+  int joint_a;
+  int joint_b;
+  double t;
+  double dx, dy, dz;
+  bool mirror;
+  const char* anatomy;
+};
+
+constexpr bool M = true;
+constexpr bool C = false;
+
+// Head rules start at the head centre, extrapolated from the neck through the
+// head joint (t = 1.9 reaches the centre of the cranium on SMPL-like bodies).
+// clang-format off
+const Rule kRules[] = {
+    // Head and neck.
+    {"LFHD", kNeck, kHead, 1.9, 1.0, -0.9, 0.45, M, "left temple, front of the headband"},
+    {"LBHD", kNeck, kHead, 1.9, 1.0, 0.9, 0.35, M, "left back of the head, headband"},
+    {"ARIEL", kNeck, kHead, 1.9, 0.0, 0.0, 1.0, C, "vertex (top of the head)"},
+    {"FHEAD", kNeck, kHead, 1.9, 0.0, -1.0, 0.55, C, "mid forehead"},
+    {"BHEAD", kNeck, kHead, 1.9, 0.0, 1.0, 0.3, C, "back of the head, midline"},
+    {"CHIN", kNeck, kHead, 1.2, 0.0, -1.0, -0.5, C, "chin"},
+    {"LNECK", kNeck, kHead, 0.45, 1.0, 0.0, 0.0, M, "left side of the neck"},
+    // Trunk.
+    {"C7", kSpine3, kNeck, 1.0, 0.0, 1.0, 0.25, C, "spinous process of C7"},
+    {"T8", kSpine2, kSpine3, 0.9, 0.0, 1.0, 0.0, C, "spinous process of T8"},
+    {"T10", kSpine2, kSpine3, 0.35, 0.0, 1.0, 0.0, C, "spinous process of T10"},
+    {"CLAV", kSpine3, kNeck, 0.78, 0.0, -1.0, 0.1, C, "jugular notch"},
+    {"STRN", kSpine2, kSpine3, 0.75, 0.0, -1.0, 0.0, C, "xiphoid process"},
+    {"RBAC", kSpine3, kRightShoulder, 0.45, -0.15, 1.0, 0.0, M, "middle of the right scapula"},
+    {"LSCAP", kSpine2, kSpine3, 0.6, 0.8, 1.0, 0.0, M, "inferior angle of the left scapula"},
+    {"LSHO", kLeftCollar, kLeftShoulder, 0.8, 0.0, 0.0, 1.0, M, "left acromion"},
+    {"LBSH", kLeftCollar, kLeftShoulder, 0.7, 0.0, 1.0, 0.5, M, "back of the left shoulder"},
+    {"LFSH", kLeftCollar, kLeftShoulder, 0.7, 0.0, -1.0, 0.5, M, "front of the left shoulder"},
+    {"LCHST", kSpine3, kNeck, 0.0, 0.5, -1.0, 0.15, M, "left chest"},
+    {"LBLLY", kSpine1, kSpine2, 0.5, 0.6, -1.0, 0.0, M, "left belly"},
+    {"MFWT", kPelvis, kSpine1, 0.0, 0.0, -1.0, -0.15, C, "front waist, midline"},
+    {"SACR", kPelvis, kSpine1, 0.0, 0.0, 1.0, 0.05, C, "sacrum"},
+    {"LFWT", kPelvis, kSpine1, 0.0, 1.4, -1.0, 0.0, M, "left anterior superior iliac spine"},
+    {"LBWT", kPelvis, kSpine1, 0.0, 0.45, 1.0, 0.15, M, "left posterior superior iliac spine"},
+    {"LBUM", kLeftHip, kLeftKnee, 0.12, 0.15, 1.0, 0.0, M, "left buttock"},
+    // Legs.
+    {"LTHI", kLeftHip, kLeftKnee, 0.55, 1.0, -0.35, 0.0, M, "lateral left thigh"},
+    {"LFTHI", kLeftHip, kLeftKnee, 0.45, 0.0, -1.0, 0.0, M, "front of the left thigh"},
+    {"LBTHI", kLeftHip, kLeftKnee, 0.5, 0.0, 1.0, 0.0, M, "back of the left thigh"},
+    {"LTHILO", kLeftHip, kLeftKnee, 0.8, 1.0, 0.0, 0.0, M, "lateral left thigh, low"},
+    {"LKNE", kLeftKnee, kLeftAnkle, 0.0, 1.0, 0.0, 0.0, M, "left lateral femoral epicondyle"},
+    {"LKNI", kLeftKnee, kLeftAnkle, 0.0, -1.0, 0.0, 0.0, M, "left medial femoral epicondyle"},
+    {"LSHN", kLeftKnee, kLeftAnkle, 0.4, 0.3, -1.0, 0.0, M, "left shin (tibia, front)"},
+    {"LTIB", kLeftKnee, kLeftAnkle, 0.55, 1.0, -0.3, 0.0, M, "lateral left shank"},
+    {"LTIBIN", kLeftKnee, kLeftAnkle, 0.55, -1.0, -0.3, 0.0, M, "medial left shank"},
+    {"LCLF", kLeftKnee, kLeftAnkle, 0.3, 0.2, 1.0, 0.0, M, "left calf"},
+    {"LANK", kLeftAnkle, kLeftFoot, 0.0, 1.0, 0.0, 0.0, M, "left lateral malleolus"},
+    {"LHEE", kLeftAnkle, kLeftFoot, 0.0, 0.0, 1.0, -0.45, M, "left calcaneus (heel)"},
+    {"LTOE", kLeftAnkle, kLeftFoot, 1.05, 0.0, -0.2, 1.0, M, "left second metatarsal head"},
+    {"LMT5", kLeftAnkle, kLeftFoot, 1.0, 1.0, 0.0, 0.2, M, "left fifth metatarsal head"},
+    {"LMT1", kLeftAnkle, kLeftFoot, 1.0, -1.0, 0.0, 0.2, M, "left first metatarsal head"},
+    {"LFOOT", kLeftAnkle, kLeftFoot, 0.55, 0.0, 0.0, 1.0, M, "dorsum of the left mid-foot"},
+    // Arms (T-pose, palms down: lateral = +Z, thumb = -Y).
+    {"LUPA", kLeftShoulder, kLeftElbow, 0.55, 0.0, 0.35, 1.0, M, "lateral left upper arm"},
+    {"LBCEP", kLeftShoulder, kLeftElbow, 0.5, 0.0, -1.0, 0.1, M, "left biceps"},
+    {"LELB", kLeftElbow, kLeftWrist, 0.0, 0.0, 0.6, 1.0, M, "left lateral humeral epicondyle"},
+    {"LELBIN", kLeftElbow, kLeftWrist, 0.0, 0.0, 0.3, -1.0, M, "left medial humeral epicondyle"},
+    {"LFRM", kLeftElbow, kLeftWrist, 0.5, 0.0, 0.3, 1.0, M, "lateral left forearm"},
+    {"LFRMIN", kLeftElbow, kLeftWrist, 0.5, 0.0, -0.3, -1.0, M, "medial left forearm"},
+    {"LWRA", kLeftWrist, kLeftHand, 0.0, 0.0, -1.0, 0.0, M, "left radial styloid (thumb side)"},
+    {"LWRB", kLeftWrist, kLeftHand, 0.0, 0.0, 1.0, 0.0, M, "left ulnar styloid (pinkie side)"},
+    {"LFIN", kLeftWrist, kLeftHand, 1.0, 0.0, 0.0, 1.0, M, "left second/third metacarpal head"},
+    {"LTHMB", kLeftWrist, kLeftHand, 0.6, 0.25, -1.0, -0.2, M, "left thumb"},
+};
+// clang-format on
+
+constexpr int kMirrorJoint[kNumCoreJoints] = {0,  2,  1,  3,  5,  4,  6,  8,
+                                              7,  9,  11, 10, 12, 14, 13, 15,
+                                              17, 16, 19, 18, 21, 20, 23, 22};
+
+struct ResolvedRule {
+  std::string label;
+  int joint_a, joint_b;
+  double t;
+  Eigen::Vector3d dir;
+};
+
+const std::map<std::string, ResolvedRule, std::less<>>& AllRules() {
+  static const auto* const kAll = [] {
+    auto* rules = new std::map<std::string, ResolvedRule, std::less<>>();
+    for (const Rule& r : kRules) {
+      const Eigen::Vector3d dir =
+          Eigen::Vector3d(r.dx, r.dy, r.dz).normalized();
+      (*rules)[r.label] = {r.label, r.joint_a, r.joint_b, r.t, dir};
+      if (r.mirror) {
+        std::string other = r.label;
+        other[0] = other[0] == 'L' ? 'R' : 'L';
+        (*rules)[other] = {other,
+                           kMirrorJoint[r.joint_a],
+                           kMirrorJoint[r.joint_b],
+                           r.t,
+                           Eigen::Vector3d(-dir.x(), dir.y(), dir.z())};
+      }
+    }
+    return rules;
+  }();
+  return *kAll;
+}
+
+// ---------------------------------------------------------------------------
+// Built-in label lists.
+
+const std::vector<std::string>& Cmu41() {
+  static const auto* const k = new std::vector<std::string>{
+      "LFHD", "RFHD", "LBHD", "RBHD", "C7",   "T10",  "CLAV", "STRN", "RBAC",
+      "LSHO", "LUPA", "LELB", "LFRM", "LWRA", "LWRB", "LFIN", "RSHO", "RUPA",
+      "RELB", "RFRM", "RWRA", "RWRB", "RFIN", "LFWT", "RFWT", "LBWT", "RBWT",
+      "LTHI", "LKNE", "LSHN", "LANK", "LHEE", "LTOE", "LMT5", "RTHI", "RKNE",
+      "RSHN", "RANK", "RHEE", "RTOE", "RMT5"};
+  return *k;
+}
+
+const std::vector<std::string>& Pig39() {
+  static const auto* const k = new std::vector<std::string>{
+      "LFHD", "RFHD", "LBHD", "RBHD", "C7",   "T10",  "CLAV", "STRN",
+      "RBAK", "LSHO", "LUPA", "LELB", "LFRM", "LWRA", "LWRB", "LFIN",
+      "RSHO", "RUPA", "RELB", "RFRM", "RWRA", "RWRB", "RFIN", "LASI",
+      "RASI", "LPSI", "RPSI", "LTHI", "LKNE", "LTIB", "LANK", "LHEE",
+      "LTOE", "RTHI", "RKNE", "RTIB", "RANK", "RHEE", "RTOE"};
+  return *k;
+}
+
+const std::vector<std::string>& Soma53Extra() {
+  static const auto* const k = new std::vector<std::string>{"ARIEL",
+                                                            "LELBIN",
+                                                            "RELBIN",
+                                                            "LKNI",
+                                                            "RKNI",
+                                                            "LMT1",
+                                                            "RMT1",
+                                                            "LBSH",
+                                                            "RBSH",
+                                                            "LFSH",
+                                                            "RFSH",
+                                                            "SACR"};
+  return *k;
+}
+
+const std::vector<std::string>& Superset89Extra() {
+  static const auto* const k = new std::vector<std::string>{
+      "LBCEP",  "RBCEP",  "LFRMIN", "RFRMIN", "LTHMB",  "RTHMB", "LFTHI",
+      "RFTHI",  "LBTHI",  "RBTHI",  "LTHILO", "RTHILO", "LCLF",  "RCLF",
+      "LTIBIN", "RTIBIN", "LCHST",  "RCHST",  "LBLLY",  "RBLLY", "LNECK",
+      "RNECK",  "LSCAP",  "RSCAP",  "LFOOT",  "RFOOT",  "LBUM",  "RBUM",
+      "LBAC",   "T8",     "CHIN",   "MFWT",   "BHEAD",  "FHEAD"};
+  return *k;
+}
+
+std::vector<std::string> Sorted(std::vector<std::string> labels) {
+  std::sort(labels.begin(), labels.end());
+  labels.erase(std::unique(labels.begin(), labels.end()), labels.end());
+  return labels;
+}
+
+// ---------------------------------------------------------------------------
+// Alias table. "{S}" expands to L and R.
+
+struct AliasTemplate {
+  const char* alias;
+  const char* canonical;
+};
+
+const AliasTemplate kAliasTemplates[] = {
+    // Vicon Plug-in Gait -> CMU/HDM05.
+    {"{S}ASI", "{S}FWT"},
+    {"{S}PSI", "{S}BWT"},
+    {"{S}BAK", "{S}BAC"},
+    // MoSh++ wrist names -> CMU/HDM05.
+    {"{S}IWR", "{S}WRA"},
+    {"{S}OWR", "{S}WRB"},
+    // Long forms and other vendors (after MoSh++ general_labels_map).
+    {"{S}_ANKLE", "{S}ANK"},
+    {"{S}_ANK", "{S}ANK"},
+    {"{S}_HEEL", "{S}HEE"},
+    {"{S}HEL", "{S}HEE"},
+    {"{S}_KNEE", "{S}KNE"},
+    {"{S}_OUTKNEE", "{S}KNE"},
+    {"{S}_INKNEE", "{S}KNI"},
+    {"{S}KNEEIN", "{S}KNI"},
+    {"{S}_SHIN", "{S}SHN"},
+    {"{S}SHIN", "{S}SHN"},
+    {"{S}_ELBOW", "{S}ELB"},
+    {"{S}_INELBOW", "{S}ELBIN"},
+    {"{S}IEL", "{S}ELBIN"},
+    {"{S}ILB", "{S}ELBIN"},
+    {"{S}_FOREARM", "{S}FRM"},
+    {"{S}FRA", "{S}FRM"},
+    {"{S}ARM", "{S}FRM"},
+    {"{S}_INWRIST", "{S}WRA"},
+    {"{S}_OUTWRIST", "{S}WRB"},
+    {"{S}_WRIST", "{S}WRB"},
+    {"{S}_FIN", "{S}FIN"},
+    {"{S}_PINKY", "{S}FIN"},
+    {"{S}OHAND", "{S}FIN"},
+    {"{S}_THUMB", "{S}THMB"},
+    {"{S}IHAND", "{S}THMB"},
+    {"{S}_TOETIP", "{S}TOE"},
+    {"{S}TOE1", "{S}TOE"},
+    {"{S}_PINKYTOE", "{S}MT5"},
+    {"{S}_BIGTOE", "{S}MT1"},
+    {"{S}HIP", "{S}THI"},
+    {"{S}_HIP", "{S}THI"},
+    {"{S}_HAM", "{S}THI"},
+    {"{S}_F_WAIST", "{S}FWT"},
+    {"{S}_FWT", "{S}FWT"},
+    {"{S}_B_WAIST", "{S}BWT"},
+    {"{S}_BWT", "{S}BWT"},
+    {"{S}_F_SHOULDER", "{S}FSH"},
+    {"{S}_B_SHOULDER", "{S}BSH"},
+    {"{S}BSHO", "{S}BSH"},
+    {"{S}_BICEP", "{S}BCEP"},
+    {"{S}_TRICEP", "{S}UPA"},
+    {"{S}_CALF", "{S}CLF"},
+    {"{S}_THIGH", "{S}THILO"},
+    {"{S}THIGH", "{S}THILO"},
+    {"{S}_UPBACK", "{S}BAC"},
+    {"{S}_MIDBACK", "{S}SCAP"},
+    // Midline.
+    {"HEAD_TOP", "ARIEL"},
+    {"TOPBACK", "C7"},
+    {"NECK_BASE", "C7"},
+    {"CHEST", "CLAV"},
+    {"UPTHRX", "CLAV"},
+    {"STERNUM", "STRN"},
+    {"LOTHRX", "STRN"},
+    {"LOBACK", "T10"},
+    {"MIDBACK", "T8"},
+    {"MID_BACK", "T8"},
+};
+
+std::string ExpandSide(std::string_view pattern, char side) {
+  std::string out;
+  for (size_t i = 0; i < pattern.size(); ++i) {
+    if (pattern.substr(i, 3) == "{S}") {
+      out.push_back(side);
+      i += 2;
+    } else {
+      out.push_back(pattern[i]);
+    }
+  }
+  return out;
+}
+
+const std::map<std::string, std::string, std::less<>>& AliasMap() {
+  static const auto* const kMap = [] {
+    auto* map = new std::map<std::string, std::string, std::less<>>();
+    for (const AliasTemplate& t : kAliasTemplates) {
+      const std::string_view alias(t.alias);
+      if (alias.find("{S}") == std::string_view::npos) {
+        (*map)[t.alias] = t.canonical;
+      } else {
+        for (const char side : {'L', 'R'}) {
+          (*map)[ExpandSide(t.alias, side)] = ExpandSide(t.canonical, side);
+        }
+      }
+    }
+    return map;
+  }();
+  return *kMap;
+}
+
+// ---------------------------------------------------------------------------
+// JSON helpers.
+
+[[noreturn]] void LayoutError(std::string_view source,
+                              std::string_view path,
+                              const std::string& message) {
+  throw IoError(fmt::format("{}: {}: {}", source, path, message));
+}
+
+void RejectUnknownKeys(const JsonValue& object,
+                       std::initializer_list<std::string_view> known,
+                       std::string_view source,
+                       std::string_view path) {
+  for (const auto& [key, value] : object.AsObject()) {
+    if (std::find(known.begin(), known.end(), key) == known.end()) {
+      std::string expected;
+      for (const auto k : known)
+        expected += fmt::format("{}{}", expected.empty() ? "" : ", ", k);
+      LayoutError(
+          source,
+          path,
+          fmt::format("unknown key \"{}\" (expected {})", key, expected));
+    }
+  }
+}
+
+int ParseVertexId(const JsonValue& value,
+                  std::string_view source,
+                  const std::string& path) {
+  if (!value.is_integer() || value.AsNumber() < 0 ||
+      value.AsNumber() > static_cast<double>(std::numeric_limits<int>::max())) {
+    std::string shown = value.is_number()
+                            ? fmt::format("{}", value.AsNumber())
+                            : std::string(JsonTypeName(value.type()));
+    LayoutError(
+        source,
+        path,
+        fmt::format("vertex id must be a non-negative integer, got {}", shown));
+  }
+  return static_cast<int>(value.AsInt());
+}
+
+// ---------------------------------------------------------------------------
+// Ray casting (Moller-Trumbore), for marker placement.
+
+bool RayTriangle(const Eigen::Vector3d& origin,
+                 const Eigen::Vector3d& dir,
+                 const Eigen::Vector3d& a,
+                 const Eigen::Vector3d& b,
+                 const Eigen::Vector3d& c,
+                 double* t_hit) {
+  const Eigen::Vector3d e1 = b - a;
+  const Eigen::Vector3d e2 = c - a;
+  const Eigen::Vector3d p = dir.cross(e2);
+  const double det = e1.dot(p);
+  if (std::abs(det) < 1e-14) return false;
+  const double inv = 1.0 / det;
+  const Eigen::Vector3d s = origin - a;
+  const double u = s.dot(p) * inv;
+  if (u < 0.0 || u > 1.0) return false;
+  const Eigen::Vector3d q = s.cross(e1);
+  const double v = dir.dot(q) * inv;
+  if (v < 0.0 || u + v > 1.0) return false;
+  const double t = e2.dot(q) * inv;
+  if (t <= 1e-9) return false;
+  *t_hit = t;
+  return true;
+}
+
+int PlaceByRule(const ResolvedRule& rule,
+                const Eigen::Matrix3Xd& vertices,
+                const Eigen::Matrix3Xi& faces,
+                const Eigen::Matrix3Xd& joints,
+                const std::string& body_name) {
+  const Eigen::Vector3d origin =
+      joints.col(rule.joint_a) +
+      rule.t * (joints.col(rule.joint_b) - joints.col(rule.joint_a));
+  double best_t = std::numeric_limits<double>::max();
+  Eigen::Index best_face = -1;
+  for (Eigen::Index f = 0; f < faces.cols(); ++f) {
+    double t = 0.0;
+    if (RayTriangle(origin,
+                    rule.dir,
+                    vertices.col(faces(0, f)),
+                    vertices.col(faces(1, f)),
+                    vertices.col(faces(2, f)),
+                    &t) &&
+        t < best_t) {
+      best_t = t;
+      best_face = f;
+    }
+  }
+  if (best_face < 0) {
+    throw InternalError(
+        fmt::format("marker {}: the placement ray from ({:.3f}, {:.3f}, "
+                    "{:.3f}) misses body '{}'",
+                    rule.label,
+                    origin.x(),
+                    origin.y(),
+                    origin.z(),
+                    body_name));
+  }
+  const Eigen::Vector3d hit = origin + best_t * rule.dir;
+  int best_vertex = faces(0, best_face);
+  for (int k = 1; k < 3; ++k) {
+    const int v = faces(k, best_face);
+    if ((vertices.col(v) - hit).squaredNorm() <
+        (vertices.col(best_vertex) - hit).squaredNorm()) {
+      best_vertex = v;
+    }
+  }
+  return best_vertex;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+// MarkerLayout.
+
+void MarkerLayout::Sort() {
+  std::stable_sort(
+      markers.begin(), markers.end(), [](const Marker& a, const Marker& b) {
+        return a.type != b.type ? a.type < b.type : a.label < b.label;
+      });
+}
+
+std::vector<std::string> MarkerLayout::Labels() const {
+  std::vector<std::string> labels;
+  labels.reserve(markers.size());
+  for (const Marker& m : markers) labels.push_back(m.label);
+  return labels;
+}
+
+int MarkerLayout::FindLabel(std::string_view label) const {
+  for (size_t i = 0; i < markers.size(); ++i) {
+    if (markers[i].label == label) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+MarkerLayout ParseMarkerLayout(std::string_view json_text,
+                               std::string_view source_name) {
+  const JsonValue root = ParseJson(json_text, source_name);
+  if (!root.is_object()) {
+    LayoutError(
+        source_name,
+        "<root>",
+        fmt::format("expected an object, got {}", JsonTypeName(root.type())));
+  }
+  RejectUnknownKeys(
+      root, {"markersets", "surface_model_type"}, source_name, "<root>");
+  MarkerLayout layout;
+  if (const JsonValue* type = root.Find("surface_model_type")) {
+    if (!type->is_string()) {
+      LayoutError(
+          source_name,
+          "surface_model_type",
+          fmt::format("expected a string, got {}", JsonTypeName(type->type())));
+    }
+    layout.surface_model_type = type->AsString();
+  }
+  const JsonValue* sets = root.Find("markersets");
+  if (sets == nullptr)
+    LayoutError(source_name, "<root>", "missing key \"markersets\"");
+  if (!sets->is_array()) {
+    LayoutError(
+        source_name,
+        "markersets",
+        fmt::format("expected an array, got {}", JsonTypeName(sets->type())));
+  }
+  std::set<std::string> types;
+  std::set<std::string> labels;
+  for (size_t s = 0; s < sets->AsArray().size(); ++s) {
+    const JsonValue& set = sets->AsArray()[s];
+    const std::string path = fmt::format("markersets[{}]", s);
+    if (!set.is_object()) {
+      LayoutError(
+          source_name,
+          path,
+          fmt::format("expected an object, got {}", JsonTypeName(set.type())));
+    }
+    RejectUnknownKeys(
+        set, {"distance_from_skin", "indices", "type"}, source_name, path);
+    std::string type = "body";
+    if (const JsonValue* t = set.Find("type")) {
+      if (!t->is_string() || t->AsString().empty()) {
+        LayoutError(source_name, path + ".type", "expected a non-empty string");
+      }
+      type = t->AsString();
+    }
+    if (!types.insert(type).second) {
+      LayoutError(
+          source_name,
+          path + ".type",
+          fmt::format("marker type \"{}\" appears in several markersets",
+                      type));
+    }
+    double distance = kDefaultDistanceFromSkin;
+    if (const JsonValue* d = set.Find("distance_from_skin")) {
+      if (!d->is_number() || !std::isfinite(d->AsNumber()) ||
+          d->AsNumber() < 0.0) {
+        LayoutError(source_name,
+                    path + ".distance_from_skin",
+                    "expected a finite non-negative number (metres)");
+      }
+      distance = d->AsNumber();
+    }
+    const JsonValue* indices = set.Find("indices");
+    if (indices == nullptr)
+      LayoutError(source_name, path, "missing key \"indices\"");
+    if (!indices->is_object()) {
+      LayoutError(source_name,
+                  path + ".indices",
+                  fmt::format("expected an object, got {}",
+                              JsonTypeName(indices->type())));
+    }
+    for (const auto& [label, value] : indices->AsObject()) {
+      const std::string label_path = fmt::format("{}.indices.{}", path, label);
+      if (label.empty())
+        LayoutError(source_name, label_path, "empty marker label");
+      if (!labels.insert(label).second) {
+        LayoutError(
+            source_name,
+            label_path,
+            fmt::format("label \"{}\" appears in several markersets", label));
+      }
+      MarkerLayout::Marker marker;
+      marker.label = label;
+      marker.type = type;
+      marker.distance_from_skin = distance;
+      if (value.is_array()) {
+        if (value.AsArray().empty())
+          LayoutError(source_name, label_path, "empty vertex id list");
+        for (size_t k = 0; k < value.AsArray().size(); ++k) {
+          const int vid = ParseVertexId(value.AsArray()[k],
+                                        source_name,
+                                        fmt::format("{}[{}]", label_path, k));
+          if (std::find(marker.vertex_ids.begin(),
+                        marker.vertex_ids.end(),
+                        vid) == marker.vertex_ids.end()) {
+            marker.vertex_ids.push_back(vid);
+          }
+        }
+      } else {
+        marker.vertex_ids.push_back(
+            ParseVertexId(value, source_name, label_path));
+      }
+      layout.markers.push_back(std::move(marker));
+    }
+  }
+  layout.Sort();
+  return layout;
+}
+
+MarkerLayout ReadMarkerLayout(const std::filesystem::path& path) {
+  return ParseMarkerLayout(ReadFile(path), path.string());
+}
+
+std::string MarkerLayoutToJson(const MarkerLayout& layout) {
+  std::map<std::string, std::pair<double, JsonValue>>
+      sets;  // type -> (distance, indices)
+  for (const MarkerLayout::Marker& m : layout.markers) {
+    if (m.vertex_ids.empty()) {
+      throw IoError(fmt::format(
+          "MarkerLayoutToJson: marker {} has no vertex id", m.label));
+    }
+    auto it = sets.find(m.type);
+    if (it == sets.end()) {
+      it = sets.emplace(m.type,
+                        std::make_pair(m.distance_from_skin,
+                                       JsonValue::MakeObject()))
+               .first;
+    } else if (it->second.first != m.distance_from_skin) {
+      throw IoError(
+          fmt::format("MarkerLayoutToJson: markers of type {} have different "
+                      "distance_from_skin ({} and {})",
+                      m.type,
+                      it->second.first,
+                      m.distance_from_skin));
+    }
+    if (m.vertex_ids.size() == 1) {
+      it->second.second.Set(m.label, JsonValue(m.vertex_ids[0]));
+    } else {
+      JsonValue ids = JsonValue::MakeArray();
+      for (const int vid : m.vertex_ids) ids.Append(JsonValue(vid));
+      it->second.second.Set(m.label, std::move(ids));
+    }
+  }
+  JsonValue root = JsonValue::MakeObject();
+  root.Set("surface_model_type", JsonValue(layout.surface_model_type));
+  JsonValue array = JsonValue::MakeArray();
+  for (auto& [type, entry] : sets) {
+    JsonValue set = JsonValue::MakeObject();
+    set.Set("distance_from_skin", JsonValue(entry.first));
+    set.Set("indices", std::move(entry.second));
+    set.Set("type", JsonValue(type));
+    array.Append(std::move(set));
+  }
+  root.Set("markersets", std::move(array));
+  return WriteJson(root, 2) + "\n";
+}
+
+void WriteMarkerLayout(const MarkerLayout& layout,
+                       const std::filesystem::path& path) {
+  WriteFileAtomic(path, MarkerLayoutToJson(layout));
+}
+
+// ---------------------------------------------------------------------------
+// Labels.
+
+const std::vector<MarkerLabelAlias>& MarkerLabelAliases() {
+  static const auto* const kList = [] {
+    auto* list = new std::vector<MarkerLabelAlias>();
+    for (const auto& [alias, canonical] : AliasMap())
+      list->push_back({alias, canonical});
+    return list;
+  }();
+  return *kList;
+}
+
+std::string CanonicalMarkerLabel(std::string_view label) {
+  std::string name(StripSubjectPrefix(label));
+  for (char& c : name)
+    c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  const auto& aliases = AliasMap();
+  const auto it = aliases.find(name);
+  return it == aliases.end() ? name : it->second;
+}
+
+const std::vector<std::string>& AnatomicalMarkerLabels() {
+  static const auto* const kLabels = [] {
+    auto* labels = new std::vector<std::string>();
+    for (const auto& [label, rule] : AllRules()) labels->push_back(label);
+    return labels;
+  }();
+  return *kLabels;
+}
+
+const std::vector<std::string>& KnownMarkerLabels() {
+  static const auto* const kLabels = [] {
+    std::vector<std::string> labels = AnatomicalMarkerLabels();
+    for (const auto& name : BuiltinLayoutNames()) {
+      for (const auto& l : BuiltinLayoutLabels(name)) labels.push_back(l);
+    }
+    for (const auto& [alias, canonical] : AliasMap()) labels.push_back(alias);
+    return new std::vector<std::string>(Sorted(std::move(labels)));
+  }();
+  return *kLabels;
+}
+
+bool IsKnownMarkerLabel(std::string_view label) {
+  const auto& known = KnownMarkerLabels();
+  return std::binary_search(known.begin(), known.end(), label);
+}
+
+MarkerLayout CanonicalizeLayout(const MarkerLayout& layout) {
+  MarkerLayout out;
+  out.surface_model_type = layout.surface_model_type;
+  for (const MarkerLayout::Marker& m : layout.markers) {
+    const std::string label = CanonicalMarkerLabel(m.label);
+    const int existing = out.FindLabel(label);
+    if (existing < 0) {
+      MarkerLayout::Marker copy = m;
+      copy.label = label;
+      out.markers.push_back(std::move(copy));
+      continue;
+    }
+    MarkerLayout::Marker& target = out.markers[existing];
+    if (target.type != m.type) {
+      throw ConfigError(fmt::format(
+          "CanonicalizeLayout: label {} (from {}) has types {} and {}",
+          label,
+          m.label,
+          target.type,
+          m.type));
+    }
+    for (const int vid : m.vertex_ids) {
+      if (std::find(target.vertex_ids.begin(), target.vertex_ids.end(), vid) ==
+          target.vertex_ids.end()) {
+        target.vertex_ids.push_back(vid);
+      }
+    }
+  }
+  out.Sort();
+  return out;
+}
+
+MarkerLayout MergeLayouts(const std::vector<MarkerLayout>& layouts,
+                          const MergeLayoutsOptions& options) {
+  if (layouts.empty()) throw ConfigError("MergeLayouts: no layouts to merge");
+  MarkerLayout out;
+  out.surface_model_type = layouts.front().surface_model_type;
+  std::map<std::string, double> distances;  // per type
+  for (size_t i = 0; i < layouts.size(); ++i) {
+    const MarkerLayout layout = options.canonicalize_labels
+                                    ? CanonicalizeLayout(layouts[i])
+                                    : layouts[i];
+    if (layout.surface_model_type != out.surface_model_type) {
+      throw ConfigError(
+          fmt::format("MergeLayouts: layouts of different surface models "
+                      "cannot be merged: {} (layout 0) "
+                      "and {} (layout {})",
+                      out.surface_model_type,
+                      layout.surface_model_type,
+                      i));
+    }
+    for (const MarkerLayout::Marker& m : layout.markers) {
+      const auto [it, inserted] =
+          distances.emplace(m.type, m.distance_from_skin);
+      if (!inserted && it->second != m.distance_from_skin) {
+        throw ConfigError(
+            fmt::format("MergeLayouts: marker type {} has distance_from_skin "
+                        "{} in one layout and {} in "
+                        "layout {} (label {})",
+                        m.type,
+                        it->second,
+                        m.distance_from_skin,
+                        i,
+                        m.label));
+      }
+      const int existing = out.FindLabel(m.label);
+      if (existing < 0) {
+        out.markers.push_back(m);
+        continue;
+      }
+      MarkerLayout::Marker& target = out.markers[existing];
+      if (target.type != m.type) {
+        throw ConfigError(fmt::format(
+            "MergeLayouts: label {} has types {} and {} (layout {})",
+            m.label,
+            target.type,
+            m.type,
+            i));
+      }
+      for (const int vid : m.vertex_ids) {
+        if (std::find(target.vertex_ids.begin(),
+                      target.vertex_ids.end(),
+                      vid) == target.vertex_ids.end()) {
+          target.vertex_ids.push_back(vid);
+        }
+      }
+    }
+  }
+  out.Sort();
+  return out;
+}
+
+void ValidateLayoutForBody(const MarkerLayout& layout,
+                           const BodyModel& body,
+                           std::string_view source,
+                           const LayoutCheckOptions& options) {
+  if (options.require_surface_model_match &&
+      layout.surface_model_type != body.name) {
+    throw IoError(fmt::format(
+        "{}: marker layout is for surface model '{}' but the body is '{}'",
+        source,
+        layout.surface_model_type,
+        body.name));
+  }
+  for (const MarkerLayout::Marker& m : layout.markers) {
+    if (m.label.empty())
+      throw IoError(fmt::format("{}: a marker has an empty label", source));
+    if (!options.allow_unknown_labels && !IsKnownMarkerLabel(m.label) &&
+        !IsKnownMarkerLabel(CanonicalMarkerLabel(m.label))) {
+      throw IoError(fmt::format(
+          "{}: unknown marker label '{}' (not a built-in label or alias; set "
+          "allow_unknown_labels to accept custom labels)",
+          source,
+          m.label));
+    }
+    if (m.vertex_ids.empty()) {
+      throw IoError(
+          fmt::format("{}: marker {} has no vertex id", source, m.label));
+    }
+    for (const int vid : m.vertex_ids) {
+      if (vid < 0 || vid >= body.num_vertices()) {
+        throw IoError(fmt::format(
+            "{}: marker {} has vertex id {} outside [0, {}) of body '{}'",
+            source,
+            m.label,
+            vid,
+            body.num_vertices(),
+            body.name));
+      }
+    }
+    if (!std::isfinite(m.distance_from_skin) || m.distance_from_skin < 0.0) {
+      throw IoError(
+          fmt::format("{}: marker {} has distance_from_skin {} (expected >= 0)",
+                      source,
+                      m.label,
+                      m.distance_from_skin));
+    }
+  }
+}
+
+MarkerLayout LoadMarkerLayoutForBody(const std::filesystem::path& path,
+                                     const BodyModel& body,
+                                     const LayoutCheckOptions& options) {
+  MarkerLayout layout = ReadMarkerLayout(path);
+  ValidateLayoutForBody(layout, body, path.string(), options);
+  return layout;
+}
+
+// ---------------------------------------------------------------------------
+// Built-in layouts.
+
+const std::vector<std::string>& BuiltinLayoutNames() {
+  static const auto* const kNames =
+      new std::vector<std::string>{"cmu41", "pig39", "soma53", "superset89"};
+  return *kNames;
+}
+
+const std::vector<std::string>& BuiltinLayoutLabels(std::string_view name) {
+  static const auto* const kLists = [] {
+    auto* lists =
+        new std::map<std::string, std::vector<std::string>, std::less<>>();
+    (*lists)["cmu41"] = Sorted(Cmu41());
+    (*lists)["pig39"] = Sorted(Pig39());
+    std::vector<std::string> soma53 = Cmu41();
+    soma53.insert(soma53.end(), Soma53Extra().begin(), Soma53Extra().end());
+    (*lists)["soma53"] = Sorted(soma53);
+    std::vector<std::string> superset;
+    for (const auto* list :
+         {&Cmu41(), &Pig39(), &Soma53Extra(), &Superset89Extra()}) {
+      for (const auto& l : *list) superset.push_back(CanonicalMarkerLabel(l));
+    }
+    (*lists)["superset89"] = Sorted(superset);
+    return lists;
+  }();
+  const auto it = kLists->find(name);
+  if (it == kLists->end()) {
+    throw ConfigError(
+        fmt::format("Unknown built-in marker layout '{}'. Available: {}",
+                    name,
+                    fmt::join(BuiltinLayoutNames(), ", ")));
+  }
+  return it->second;
+}
+
+MarkerLayout MakeBuiltinLayout(const BodyModel& body, std::string_view name) {
+  const std::vector<std::string>& labels = BuiltinLayoutLabels(name);
+  if (body.num_joints() < kNumCoreJoints) {
+    throw ShapeError(fmt::format(
+        "MakeBuiltinLayout: body '{}' has {} joints, needs the {} core "
+        "joints",
+        body.name,
+        body.num_joints(),
+        static_cast<int>(kNumCoreJoints)));
+  }
+  const Eigen::Matrix3Xd joints = body.RestJoints(body.template_vertices);
+  const auto& rules = AllRules();
+  MarkerLayout layout;
+  layout.surface_model_type = body.name;
+  for (const std::string& label : labels) {
+    const auto it = rules.find(CanonicalMarkerLabel(label));
+    if (it == rules.end()) {
+      throw InternalError(
+          fmt::format("built-in label {} has no placement rule", label));
+    }
+    MarkerLayout::Marker marker;
+    marker.label = label;
+    marker.vertex_ids = {PlaceByRule(
+        it->second, body.template_vertices, body.faces, joints, body.name)};
+    layout.markers.push_back(std::move(marker));
+  }
+  layout.Sort();
+  return layout;
+}
+
+Eigen::Matrix3Xd MarkerPositions(const MarkerLayout& layout,
+                                 const Eigen::Matrix3Xd& vertices,
+                                 const Eigen::Matrix3Xd& normals) {
+  if (normals.cols() != vertices.cols()) {
+    throw ShapeError(fmt::format("MarkerPositions: {} normals for {} vertices",
+                                 normals.cols(),
+                                 vertices.cols()));
+  }
+  Eigen::Matrix3Xd out(3, layout.num_markers());
+  for (int i = 0; i < layout.num_markers(); ++i) {
+    const MarkerLayout::Marker& m = layout.markers[i];
+    if (m.vertex_ids.empty() || m.vertex_ids[0] < 0 ||
+        m.vertex_ids[0] >= vertices.cols()) {
+      throw ShapeError(fmt::format(
+          "MarkerPositions: marker {} has no valid vertex id", m.label));
+    }
+    const int vid = m.vertex_ids[0];
+    out.col(i) = vertices.col(vid) + m.distance_from_skin * normals.col(vid);
+  }
+  return out;
+}
+
+}  // namespace soma
