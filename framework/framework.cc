@@ -1,10 +1,5 @@
 #include "framework/framework.h"
 
-#include <algorithm>
-#include <mutex>
-
-#include <fmt/format.h>
-
 #include "framework/body/body_source.h"
 #include "framework/config/interpolation.h"
 #include "framework/core/random.h"
@@ -12,6 +7,11 @@
 #include "framework/motion/motion_source.h"
 #include "framework/registry/registry.h"
 #include "framework/tasks/task.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <mutex>
 
 namespace soma {
 namespace {
@@ -29,12 +29,14 @@ ConfigNode SweepIdResolver(const std::vector<ConfigNode>& args,
   if (const ConfigNode* task = call.root->FindPath("hydra.overrides.task");
       task && task->IsList()) {
     std::vector<std::string> overrides;
-    for (const ConfigNode& item : task->items()) overrides.push_back(item.text());
+    for (const ConfigNode& item : task->items())
+      overrides.push_back(item.text());
     std::sort(overrides.begin(), overrides.end());
     parts.insert(parts.end(), overrides.begin(), overrides.end());
   }
   const std::string joined = fmt::format("{}", fmt::join(parts, "\n"));
-  return ConfigNode::LiteralString(fmt::format("{:016x}", Fnv1a64(joined)).substr(0, 10));
+  return ConfigNode::LiteralString(
+      fmt::format("{:016x}", Fnv1a64(joined)).substr(0, 10));
 }
 
 }  // namespace

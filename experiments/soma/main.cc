@@ -2,17 +2,17 @@
 // framework/; see README.md for the commands.
 //
 //   soma                          run the default task on the default config
-//   soma <command> [overrides]    run a task (demo, ...): sugar for task=<command>
-//   soma -m a=1,2 b=x,y           a Hydra-style multirun sweep
-#include <filesystem>
-#include <string>
-#include <vector>
-
+//   soma <command> [overrides]    run a task (demo, ...): sugar for
+//   task=<command> soma -m a=1,2 b=x,y           a Hydra-style multirun sweep
 #include "framework/config/app.h"
 #include "framework/core/build_info.h"
 #include "framework/framework.h"
 #include "framework/registry/registry.h"
 #include "framework/tasks/task.h"
+
+#include <filesystem>
+#include <string>
+#include <vector>
 
 int main(int argc, char** argv) {
   soma::InitFramework();

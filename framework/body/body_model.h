@@ -14,13 +14,13 @@
 // joint's rest position.
 #pragma once
 
-#include <cstdint>
-#include <string>
-#include <vector>
-
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <Eigen/SparseCore>
+
+#include <cstdint>
+#include <string>
+#include <vector>
 
 namespace soma {
 
@@ -95,7 +95,9 @@ class BodyModel {
   // by the flattened (R_j - I) of the non-root joints. Empty if none.
   Eigen::MatrixXd pose_dirs;
 
-  int num_vertices() const { return static_cast<int>(template_vertices.cols()); }
+  int num_vertices() const {
+    return static_cast<int>(template_vertices.cols());
+  }
   int num_faces() const { return static_cast<int>(faces.cols()); }
   int num_joints() const { return static_cast<int>(parents.size()); }
   int num_betas() const { return static_cast<int>(shape_dirs.cols()); }
@@ -127,7 +129,8 @@ PosedSkeleton PoseSkeleton(const BodyModel& body,
 
 /// Poses every vertex by linear blend skinning (with pose correctives when
 /// the body has them).
-Eigen::Matrix3Xd PoseVertices(const BodyModel& body, const Eigen::VectorXd& betas,
+Eigen::Matrix3Xd PoseVertices(const BodyModel& body,
+                              const Eigen::VectorXd& betas,
                               const BodyPose& pose);
 
 /// Area-weighted vertex normals (normalised sum of unnormalised face normals
@@ -141,7 +144,8 @@ std::vector<std::vector<int>> VertexNeighbours(int num_vertices,
 
 /// The n-ring of `vertex`: vertices at edge distance 1..n (not the vertex
 /// itself), sorted.
-std::vector<int> NRing(const std::vector<std::vector<int>>& neighbours, int vertex,
+std::vector<int> NRing(const std::vector<std::vector<int>>& neighbours,
+                       int vertex,
                        int n);
 
 }  // namespace soma

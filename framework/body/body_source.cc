@@ -1,7 +1,5 @@
 #include "framework/body/body_source.h"
 
-#include <fmt/format.h>
-
 #include "framework/body/makehuman_body.h"
 #include "framework/body/procedural_body.h"
 #include "framework/body/smpl_body.h"
@@ -9,12 +7,15 @@
 #include "framework/core/error.h"
 #include "framework/registry/registry.h"
 
+#include <fmt/format.h>
+
 namespace soma {
 namespace {
 
 class ProceduralBodySource : public BodySource {
  public:
-  explicit ProceduralBodySource(ProceduralBodyOptions options) : options_(options) {}
+  explicit ProceduralBodySource(ProceduralBodyOptions options)
+      : options_(options) {}
   BodyModel Build() const override { return MakeProceduralBody(options_); }
 
  private:
@@ -55,11 +56,13 @@ std::unique_ptr<BodySource> MakeMakeHumanSource(const ConfigNode& node) {
   reader.Read("num_betas", &options.num_betas);
   reader.Read("metres_per_unit", &options.metres_per_unit);
   reader.Read("regressor_support_factor", &options.regressor_support_factor);
-  reader.Check("rest_pose", rest_pose == "t_pose" || rest_pose == "asset",
+  reader.Check("rest_pose",
+               rest_pose == "t_pose" || rest_pose == "asset",
                "rest_pose is t_pose or asset");
   reader.Finish();
-  options.rest_pose = rest_pose == "t_pose" ? MakeHumanLoadOptions::RestPose::kTPose
-                                            : MakeHumanLoadOptions::RestPose::kAsset;
+  options.rest_pose = rest_pose == "t_pose"
+                          ? MakeHumanLoadOptions::RestPose::kTPose
+                          : MakeHumanLoadOptions::RestPose::kAsset;
   options.Validate();
   return std::make_unique<MakeHumanBodySource>(dir, options);
 }
@@ -89,7 +92,8 @@ std::unique_ptr<BodySource> MakeSmplSource(const ConfigNode& node) {
 
 class BuiltinLayoutSource : public LayoutSource {
  public:
-  explicit BuiltinLayoutSource(std::string layout) : layout_(std::move(layout)) {}
+  explicit BuiltinLayoutSource(std::string layout)
+      : layout_(std::move(layout)) {}
   MarkerLayout Build(const BodyModel& body) const override {
     return MakeBuiltinLayout(body, layout_);
   }
@@ -114,12 +118,15 @@ class FileLayoutSource : public LayoutSource {
 void RegisterBodySources() {
   Registry<BodySource>& bodies = GetRegistry<BodySource>();
   bodies.Register("procedural", [](const ConfigNode& node, BuildContext&) {
-    return std::make_unique<ProceduralBodySource>(DecodeProceduralBodyOptions(node));
+    return std::make_unique<ProceduralBodySource>(
+        DecodeProceduralBodyOptions(node));
   });
-  bodies.Register("makehuman",
-                  [](const ConfigNode& node, BuildContext&) { return MakeMakeHumanSource(node); });
-  bodies.Register("smplx",
-                  [](const ConfigNode& node, BuildContext&) { return MakeSmplSource(node); });
+  bodies.Register("makehuman", [](const ConfigNode& node, BuildContext&) {
+    return MakeMakeHumanSource(node);
+  });
+  bodies.Register("smplx", [](const ConfigNode& node, BuildContext&) {
+    return MakeSmplSource(node);
+  });
   RegisterConfigGroup<BodySource>("body");
 
   Registry<LayoutSource>& layouts = GetRegistry<LayoutSource>();
@@ -128,7 +135,8 @@ void RegisterBodySources() {
     std::string layout;
     reader.Require("layout", &layout);
     const auto& names = BuiltinLayoutNames();
-    reader.Check("layout", std::find(names.begin(), names.end(), layout) != names.end(),
+    reader.Check("layout",
+                 std::find(names.begin(), names.end(), layout) != names.end(),
                  fmt::format("one of {}", fmt::join(names, ", ")));
     reader.Finish();
     return std::make_unique<BuiltinLayoutSource>(layout);

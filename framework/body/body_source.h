@@ -3,10 +3,10 @@
 // entries that build a BodyModel / MarkerLayout from a config node.
 #pragma once
 
-#include <string_view>
-
 #include "framework/body/body_model.h"
 #include "framework/body/marker_layout.h"
+
+#include <string_view>
 
 namespace soma {
 

@@ -1,18 +1,5 @@
 #include "framework/config/app.h"
 
-#include <sys/wait.h>
-#include <unistd.h>
-
-#include <algorithm>
-#include <cstdio>
-#include <cstdlib>
-#include <exception>
-#include <map>
-#include <optional>
-#include <thread>
-
-#include <fmt/format.h>
-
 #include "framework/config/compose.h"
 #include "framework/config/interpolation.h"
 #include "framework/config/ledger.h"
@@ -26,6 +13,18 @@
 #include "framework/core/provenance.h"
 #include "framework/core/random.h"
 #include "framework/core/timer.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <exception>
+#include <map>
+#include <optional>
+#include <sys/wait.h>
+#include <thread>
+#include <unistd.h>
 
 namespace soma {
 namespace {
@@ -43,8 +42,8 @@ class UsageError : public Error {
 };
 
 struct CliArgs {
-  std::string config_path;  // -cp
-  std::string config_name;  // -cn
+  std::string config_path;               // -cp
+  std::string config_name;               // -cn
   std::vector<std::string> config_dirs;  // -cd
   std::optional<std::string> cfg;        // --cfg job|hydra|all
   bool resolve = false;                  // --resolve
@@ -61,7 +60,8 @@ CliArgs ParseArgs(const std::vector<std::string>& args,
   CliArgs cli;
   cli.config_path = std::string(default_config_dir);
   cli.config_name = std::string(default_config_name);
-  auto take_value = [&](size_t& i, std::string_view flag,
+  auto take_value = [&](size_t& i,
+                        std::string_view flag,
                         const std::optional<std::string>& inline_value) {
     if (inline_value) return *inline_value;
     if (i + 1 >= args.size()) {
@@ -77,7 +77,8 @@ CliArgs ParseArgs(const std::vector<std::string>& args,
     }
     std::string flag = arg;
     std::optional<std::string> inline_value;
-    if (const size_t eq = arg.find('='); eq != std::string::npos && arg.rfind("--", 0) == 0) {
+    if (const size_t eq = arg.find('=');
+        eq != std::string::npos && arg.rfind("--", 0) == 0) {
       flag = arg.substr(0, eq);
       inline_value = arg.substr(eq + 1);
     }
@@ -111,8 +112,8 @@ CliArgs ParseArgs(const std::vector<std::string>& args,
                  args[i + 1].find('=') == std::string::npos) {
         what = args[++i];
       }
-      static const char* kInfos[] = {"all", "defaults", "defaults-tree",
-                                     "searchpath", "config"};
+      static const char* kInfos[] = {
+          "all", "defaults", "defaults-tree", "searchpath", "config"};
       if (std::find(std::begin(kInfos), std::end(kInfos), what) ==
           std::end(kInfos)) {
         throw UsageError(fmt::format(
@@ -137,8 +138,10 @@ std::vector<std::string> SearchPath(const CliArgs& cli) {
   return path;
 }
 
-ComposeRequest MakeRequest(const CliArgs& cli, std::vector<Override> overrides,
-                           RunMode mode, bool allow_sweeps) {
+ComposeRequest MakeRequest(const CliArgs& cli,
+                           std::vector<Override> overrides,
+                           RunMode mode,
+                           bool allow_sweeps) {
   ComposeRequest request;
   request.search_path = SearchPath(cli);
   request.config_name = cli.config_name;
@@ -153,8 +156,8 @@ std::string ResolveToString(const ConfigNode& root, std::string_view path) {
   const ConfigNode value = Select(root, path, DefaultResolvers());
   if (value.IsString()) return value.AsString();
   if (value.IsInt()) return std::to_string(value.AsInt());
-  throw ConfigError(fmt::format("{} must be a string, got {}", path,
-                                value.Describe()));
+  throw ConfigError(
+      fmt::format("{} must be a string, got {}", path, value.Describe()));
 }
 
 std::string ConfigHash(const ConfigNode& root) {
@@ -179,34 +182,45 @@ ConfigNode StringList(const std::vector<std::string>& items) {
 }
 
 /// Adds the run-time facts of a job to its hydra node.
-void SetJobRuntime(ConfigNode& root, const CliArgs& cli, int job_num,
+void SetJobRuntime(ConfigNode& root,
+                   const CliArgs& cli,
+                   int job_num,
                    const fs::path& output_dir) {
   root.SetPath("hydra.job.num", job_num);
-  root.SetPath("hydra.job.id", ConfigNode::LiteralString(std::to_string(job_num)));
-  root.SetPath("hydra.job.config_name", ConfigNode::LiteralString(cli.config_name));
+  root.SetPath("hydra.job.id",
+               ConfigNode::LiteralString(std::to_string(job_num)));
+  root.SetPath("hydra.job.config_name",
+               ConfigNode::LiteralString(cli.config_name));
   root.SetPath("hydra.runtime.output_dir",
-               ConfigNode::LiteralString(fs::absolute(output_dir).lexically_normal().string()));
-  root.SetPath("hydra.runtime.cwd", ConfigNode::LiteralString(fs::current_path().string()));
+               ConfigNode::LiteralString(
+                   fs::absolute(output_dir).lexically_normal().string()));
+  root.SetPath("hydra.runtime.cwd",
+               ConfigNode::LiteralString(fs::current_path().string()));
 }
 
 int ThreadsFor(const ConfigNode& task_cfg, int n_parallel) {
   int threads = 0;
-  if (const ConfigNode* node = task_cfg.Find("threads"); node && node->IsInt()) {
+  if (const ConfigNode* node = task_cfg.Find("threads");
+      node && node->IsInt()) {
     threads = static_cast<int>(node->AsInt());
   }
   if (threads <= 0) {
-    threads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+    threads =
+        static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   }
   return std::max(1, threads / std::max(1, n_parallel));
 }
 
-ConfigNode ProvenanceNode(const GitState& git, const std::string& start_time,
-                          const std::optional<std::pair<std::string, double>>& end,
-                          int threads) {
+ConfigNode ProvenanceNode(
+    const GitState& git,
+    const std::string& start_time,
+    const std::optional<std::pair<std::string, double>>& end,
+    int threads) {
   ConfigNode node = ConfigNode::EmptyMap();
   const BuildInfo build = GetBuildInfo();
   node.Set("somalab_version", ConfigNode::LiteralString(build.version));
-  node.Set("git_sha", ConfigNode::LiteralString(git.available ? git.sha : "unknown"));
+  node.Set("git_sha",
+           ConfigNode::LiteralString(git.available ? git.sha : "unknown"));
   node.Set("git_dirty", git.dirty);
   node.Set("compiler", ConfigNode::LiteralString(build.compiler));
   node.Set("build_type", ConfigNode::LiteralString(build.build_type));
@@ -243,9 +257,13 @@ struct JobOutcome {
 
 /// Runs one job in this process: writes `.hydra/`, opens the job log, runs the
 /// task, catches its errors, writes metrics. Never throws soma::Error.
-JobOutcome RunJob(ConfigNode root, const ConfigNode& resolved,
-                  const fs::path& output_dir, int job_num, int threads,
-                  const GitState& git, const TaskFn& task) {
+JobOutcome RunJob(ConfigNode root,
+                  const ConfigNode& resolved,
+                  const fs::path& output_dir,
+                  int job_num,
+                  int threads,
+                  const GitState& git,
+                  const TaskFn& task) {
   JobOutcome outcome;
   Timer timer;
   const std::string start_time = IsoNow();
@@ -260,7 +278,8 @@ JobOutcome RunJob(ConfigNode root, const ConfigNode& resolved,
       root.SetPath("hydra.runtime.provenance",
                    ProvenanceNode(git, start_time, std::nullopt, threads));
       WriteFileAtomic(hydra_dir / "config.yaml", DumpYaml(TaskConfig(root)));
-      WriteFileAtomic(hydra_dir / "hydra.yaml", DumpHydraNode(root.at("hydra")));
+      WriteFileAtomic(hydra_dir / "hydra.yaml",
+                      DumpHydraNode(root.at("hydra")));
       WriteFileAtomic(hydra_dir / "overrides.yaml",
                       DumpYaml(StringList(TaskOverrides(root))));
       if (git.dirty && !git.diff.empty()) {
@@ -305,16 +324,20 @@ JobOutcome RunJob(ConfigNode root, const ConfigNode& resolved,
   try {
     if (!outcome.metrics.empty()) {
       ConfigNode metrics = ConfigNode::EmptyMap();
-      for (const auto& [name, value] : outcome.metrics) metrics.Set(name, value);
+      for (const auto& [name, value] : outcome.metrics)
+        metrics.Set(name, value);
       WriteFileAtomic(output_dir / "metrics.yaml", DumpYaml(metrics));
     }
-    if (!outcome.ok) WriteFileAtomic(output_dir / "error.txt", outcome.error + "\n");
+    if (!outcome.ok)
+      WriteFileAtomic(output_dir / "error.txt", outcome.error + "\n");
     if (!hydra_dir.empty()) {
       root.SetPath("hydra.runtime.provenance",
-                   ProvenanceNode(git, start_time,
+                   ProvenanceNode(git,
+                                  start_time,
                                   std::make_pair(IsoNow(), outcome.wall_time_s),
                                   threads));
-      WriteFileAtomic(hydra_dir / "hydra.yaml", DumpHydraNode(root.at("hydra")));
+      WriteFileAtomic(hydra_dir / "hydra.yaml",
+                      DumpHydraNode(root.at("hydra")));
     }
   } catch (const Error& e) {
     if (outcome.ok) {
@@ -332,8 +355,9 @@ JobOutcome ReadOutcome(const fs::path& output_dir, bool ok, double wall) {
   outcome.wall_time_s = wall;
   try {
     if (fs::exists(output_dir / "metrics.yaml")) {
-      const ConfigNode metrics = ParseYaml(ReadFile(output_dir / "metrics.yaml"),
-                                           (output_dir / "metrics.yaml").string());
+      const ConfigNode metrics =
+          ParseYaml(ReadFile(output_dir / "metrics.yaml"),
+                    (output_dir / "metrics.yaml").string());
       for (const auto& [name, value] : metrics.entries()) {
         outcome.metrics[name] = value.AsDouble();
       }
@@ -367,8 +391,8 @@ void PrintConfig(const CliArgs& cli, ConfigNode root) {
   if (!cli.package.empty()) {
     const ConfigNode* sub = selected.FindPath(cli.package);
     if (sub == nullptr) {
-      throw ConfigError(fmt::format("--package: no key '{}' in the {} config",
-                                    cli.package, *cli.cfg));
+      throw ConfigError(fmt::format(
+          "--package: no key '{}' in the {} config", cli.package, *cli.cfg));
     }
     std::fputs(fmt::format("# @package {}\n", cli.package).c_str(), stdout);
     selected = *sub;
@@ -381,7 +405,8 @@ void PrintInfo(const CliArgs& cli, const ComposeResult& result) {
   std::string out;
   if (what == "all" || what == "searchpath") {
     out += "Config search path\n******************\n";
-    for (const std::string& root : result.search_path) out += "  " + root + "\n";
+    for (const std::string& root : result.search_path)
+      out += "  " + root + "\n";
     out += "\n";
   }
   if (what == "all" || what == "defaults" || what == "defaults-tree") {
@@ -417,17 +442,21 @@ void PrintHelp(const CliArgs& cli) {
   try {
     std::vector<std::string> roots = SearchPath(cli);
     ConfigRepository repo(roots);
-    out += "== Configuration groups ==\n"
-           "Compose your configuration from those groups (group=option)\n\n";
+    out +=
+        "== Configuration groups ==\n"
+        "Compose your configuration from those groups (group=option)\n\n";
     for (const std::string& group : repo.Groups()) {
       const std::vector<std::string> options = repo.Options(group);
       if (options.empty()) continue;
       out += fmt::format("{}: {}\n", group, fmt::join(options, ", "));
     }
     const ComposeResult result =
-        Compose(MakeRequest(cli, ParseOverrides(cli.overrides), RunMode::kRun,
+        Compose(MakeRequest(cli,
+                            ParseOverrides(cli.overrides),
+                            RunMode::kRun,
                             /*allow_sweeps=*/true));
-    out += "\n== Config ==\nOverride anything in the config (foo.bar=value)\n\n";
+    out +=
+        "\n== Config ==\nOverride anything in the config (foo.bar=value)\n\n";
     out += DumpYaml(TaskConfig(result.root));
   } catch (const Error& e) {
     out += fmt::format("(cannot show the configuration: {})\n", e.what());
@@ -446,9 +475,11 @@ bool WantsMultirun(const CliArgs& cli, const std::vector<Override>& overrides) {
   return false;
 }
 
-int RunSingle(const CliArgs& cli, const std::vector<Override>& overrides,
+int RunSingle(const CliArgs& cli,
+              const std::vector<Override>& overrides,
               const TaskFn& task) {
-  ComposeResult result = Compose(MakeRequest(cli, overrides, RunMode::kRun, false));
+  ComposeResult result =
+      Compose(MakeRequest(cli, overrides, RunMode::kRun, false));
   ConfigNode root = std::move(result.root);
   const fs::path output_dir = ResolveToString(root, "hydra.run.dir");
   SetJobRuntime(root, cli, 0, output_dir);
@@ -459,9 +490,11 @@ int RunSingle(const CliArgs& cli, const std::vector<Override>& overrides,
   const JobOutcome outcome =
       RunJob(root, resolved, output_dir, 0, threads, QueryGit(), task);
   if (!outcome.ok) {
-    std::fprintf(stderr, "Error executing job with overrides: [%s]: %s\n",
-                 fmt::format("{}", fmt::join(TaskOverrides(root), ", ")).c_str(),
-                 outcome.error.c_str());
+    std::fprintf(
+        stderr,
+        "Error executing job with overrides: [%s]: %s\n",
+        fmt::format("{}", fmt::join(TaskOverrides(root), ", ")).c_str(),
+        outcome.error.c_str());
     return kExitError;
   }
   return kExitOk;
@@ -476,7 +509,8 @@ struct PlannedJob {
   std::string hash;
 };
 
-int RunMultirun(const CliArgs& cli, const std::vector<Override>& overrides,
+int RunMultirun(const CliArgs& cli,
+                const std::vector<Override>& overrides,
                 const TaskFn& task) {
   // Sweep-level composition (validates the structure; records raw sweeps).
   ComposeResult sweep =
@@ -500,8 +534,10 @@ int RunMultirun(const CliArgs& cli, const std::vector<Override>& overrides,
     job.num = static_cast<int>(i);
     job.overrides = job_overrides[i];
     try {
-      job.root = Compose(MakeRequest(cli, ParseOverrides(job.overrides),
-                                     RunMode::kMultirun, false))
+      job.root = Compose(MakeRequest(cli,
+                                     ParseOverrides(job.overrides),
+                                     RunMode::kMultirun,
+                                     false))
                      .root;
       job.root.SetPath("hydra.sweep.dir",
                        ConfigNode::LiteralString(sweep_dir.string()));
@@ -511,8 +547,11 @@ int RunMultirun(const CliArgs& cli, const std::vector<Override>& overrides,
       job.resolved = Resolve(job.root, DefaultResolvers());
       job.hash = ConfigHash(job.root);
     } catch (const Error& e) {
-      throw ConfigError(fmt::format("Job {} with overrides [{}] does not compose: {}",
-                                    i, fmt::join(job.overrides, ", "), e.what()));
+      throw ConfigError(
+          fmt::format("Job {} with overrides [{}] does not compose: {}",
+                      i,
+                      fmt::join(job.overrides, ", "),
+                      e.what()));
     }
     jobs.push_back(std::move(job));
   }
@@ -520,14 +559,19 @@ int RunMultirun(const CliArgs& cli, const std::vector<Override>& overrides,
   CreateDirectories(sweep_dir);
   WriteFileAtomic(sweep_dir / "multirun.yaml", DumpYaml(sweep.root));
   Ledger ledger = Ledger::Load(sweep_dir);
-  SOMA_LOG(INFO, "Launching {} jobs in {} ({} at a time)", jobs.size(),
-           sweep_dir.string(), n_jobs);
+  SOMA_LOG(INFO,
+           "Launching {} jobs in {} ({} at a time)",
+           jobs.size(),
+           sweep_dir.string(),
+           n_jobs);
 
   const GitState git = QueryGit();
   std::vector<const PlannedJob*> todo;
   for (const PlannedJob& job : jobs) {
     if (ledger.IsDone(job.num, job.hash)) {
-      SOMA_LOG(INFO, "#{} : {} (done, skipped)", job.num,
+      SOMA_LOG(INFO,
+               "#{} : {} (done, skipped)",
+               job.num,
                fmt::join(job.overrides, " "));
       continue;
     }
@@ -559,8 +603,14 @@ int RunMultirun(const CliArgs& cli, const std::vector<Override>& overrides,
     for (const PlannedJob* job : todo) {
       start(*job);
       const int threads = ThreadsFor(TaskConfig(job->resolved), 1);
-      finish(*job, RunJob(job->root, job->resolved, job->dir, job->num, threads,
-                          git, task));
+      finish(*job,
+             RunJob(job->root,
+                    job->resolved,
+                    job->dir,
+                    job->num,
+                    threads,
+                    git,
+                    task));
     }
   } else {
     // Parallel local launcher: one forked process per job, n_jobs at a time.
@@ -573,11 +623,12 @@ int RunMultirun(const CliArgs& cli, const std::vector<Override>& overrides,
         std::fflush(stdout);
         std::fflush(stderr);
         const pid_t pid = ::fork();
-        if (pid < 0) throw InternalError("fork() failed for the parallel launcher");
+        if (pid < 0)
+          throw InternalError("fork() failed for the parallel launcher");
         if (pid == 0) {
           const int threads = ThreadsFor(TaskConfig(job->resolved), n_jobs);
-          const JobOutcome outcome = RunJob(job->root, job->resolved, job->dir,
-                                            job->num, threads, git, task);
+          const JobOutcome outcome = RunJob(
+              job->root, job->resolved, job->dir, job->num, threads, git, task);
           std::fflush(stdout);
           std::fflush(stderr);
           ::_exit(outcome.ok ? 0 : 1);
@@ -590,9 +641,10 @@ int RunMultirun(const CliArgs& cli, const std::vector<Override>& overrides,
       auto it = running.find(pid);
       if (it == running.end()) continue;
       const bool ok = WIFEXITED(status) && WEXITSTATUS(status) == 0;
-      finish(*it->second.first,
-             ReadOutcome(it->second.first->dir, ok,
-                         it->second.second.ElapsedSeconds()));
+      finish(
+          *it->second.first,
+          ReadOutcome(
+              it->second.first->dir, ok, it->second.second.ElapsedSeconds()));
       running.erase(it);
     }
   }
@@ -603,18 +655,30 @@ int RunMultirun(const CliArgs& cli, const std::vector<Override>& overrides,
     if (entry.status != JobStatus::kDone) failures.push_back(&entry);
   }
   if (failures.empty()) {
-    SOMA_LOG(INFO, "All {} jobs done; ledger {}, summary {}", jobs.size(),
-             (sweep_dir / "jobs.csv").string(), (sweep_dir / "summary.md").string());
+    SOMA_LOG(INFO,
+             "All {} jobs done; ledger {}, summary {}",
+             jobs.size(),
+             (sweep_dir / "jobs.csv").string(),
+             (sweep_dir / "summary.md").string());
     return kExitOk;
   }
   for (const LedgerEntry* f : failures) {
-    SOMA_LOG(ERROR, "Job {} [{}] {}: {}", f->num, fmt::join(f->overrides, ", "),
-             ToString(f->status), f->error);
+    SOMA_LOG(ERROR,
+             "Job {} [{}] {}: {}",
+             f->num,
+             fmt::join(f->overrides, ", "),
+             ToString(f->status),
+             f->error);
   }
-  std::fprintf(stderr, "Error executing job with overrides: [%s]: %s (%zu of %zu jobs failed; see %s)\n",
-               fmt::format("{}", fmt::join(failures.front()->overrides, ", ")).c_str(),
-               failures.front()->error.c_str(), failures.size(), jobs.size(),
-               (sweep_dir / "jobs.csv").c_str());
+  std::fprintf(
+      stderr,
+      "Error executing job with overrides: [%s]: %s (%zu of %zu jobs failed; "
+      "see %s)\n",
+      fmt::format("{}", fmt::join(failures.front()->overrides, ", ")).c_str(),
+      failures.front()->error.c_str(),
+      failures.size(),
+      jobs.size(),
+      (sweep_dir / "jobs.csv").c_str());
   return kExitError;
 }
 
@@ -622,9 +686,11 @@ int RunMultirun(const CliArgs& cli, const std::vector<Override>& overrides,
 
 int RunHydraApp(const std::vector<std::string>& args,
                 std::string_view default_config_dir,
-                std::string_view default_config_name, const TaskFn& task) {
+                std::string_view default_config_name,
+                const TaskFn& task) {
   try {
-    const CliArgs cli = ParseArgs(args, default_config_dir, default_config_name);
+    const CliArgs cli =
+        ParseArgs(args, default_config_dir, default_config_name);
     if (cli.help) {
       PrintHelp(cli);
       return kExitOk;
@@ -633,7 +699,8 @@ int RunHydraApp(const std::vector<std::string>& args,
     const bool multirun = WantsMultirun(cli, overrides);
     if (cli.cfg || cli.info) {
       const ComposeResult result =
-          Compose(MakeRequest(cli, overrides,
+          Compose(MakeRequest(cli,
+                              overrides,
                               multirun ? RunMode::kMultirun : RunMode::kRun,
                               /*allow_sweeps=*/multirun));
       if (cli.cfg) PrintConfig(cli, result.root);
@@ -654,8 +721,11 @@ int RunHydraApp(const std::vector<std::string>& args,
   }
 }
 
-int RunHydraApp(int argc, char** argv, std::string_view default_config_dir,
-                std::string_view default_config_name, const TaskFn& task) {
+int RunHydraApp(int argc,
+                char** argv,
+                std::string_view default_config_dir,
+                std::string_view default_config_name,
+                const TaskFn& task) {
   std::vector<std::string> args(argv + 1, argv + argc);
   return RunHydraApp(args, default_config_dir, default_config_name, task);
 }

@@ -4,14 +4,14 @@
 // the resumable job ledger, seed aggregation and the parallel launcher.
 #pragma once
 
+#include "framework/config/node.h"
+
 #include <filesystem>
 #include <functional>
 #include <map>
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include "framework/config/node.h"
 
 namespace soma {
 
@@ -51,12 +51,16 @@ using TaskFn = std::function<void(const ConfigNode& task_cfg, RunContext& ctx)>;
 /// Parses argv, composes, runs the task once (run mode) or over the sweep
 /// (`-m`), writes output directories, catches every soma::Error, logs it as
 /// one line and returns the exit code (0 ok, 1 error, 2 usage error).
-int RunHydraApp(int argc, char** argv, std::string_view default_config_dir,
-                std::string_view default_config_name, const TaskFn& task);
+int RunHydraApp(int argc,
+                char** argv,
+                std::string_view default_config_dir,
+                std::string_view default_config_name,
+                const TaskFn& task);
 
 /// Same, with the arguments as a vector (argv[0] excluded).
 int RunHydraApp(const std::vector<std::string>& args,
                 std::string_view default_config_dir,
-                std::string_view default_config_name, const TaskFn& task);
+                std::string_view default_config_name,
+                const TaskFn& task);
 
 }  // namespace soma

@@ -6,6 +6,10 @@
 // later configs), and the final defaults list is a DFS walk of the tree.
 #include "framework/config/compose.h"
 
+#include "framework/config/yaml_io.h"
+#include "framework/core/build_info.h"
+#include "framework/core/error.h"
+
 #include <fmt/format.h>
 
 #include <algorithm>
@@ -15,10 +19,6 @@
 #include <set>
 #include <system_error>
 #include <utility>
-
-#include "framework/config/yaml_io.h"
-#include "framework/core/build_info.h"
-#include "framework/core/error.h"
 
 namespace soma {
 namespace {
@@ -40,7 +40,8 @@ std::string Join(const std::vector<std::string>& items, std::string_view sep) {
   return out;
 }
 
-std::string ReplaceAll(std::string text, std::string_view from,
+std::string ReplaceAll(std::string text,
+                       std::string_view from,
                        std::string_view to) {
   if (from.empty()) return text;
   size_t pos = 0;
@@ -351,7 +352,8 @@ std::vector<std::string> SplitWords(std::string_view text) {
 }
 
 Element ParseGroupDefault(const std::string& config_path,
-                          const std::string& key, const ConfigNode& value,
+                          const std::string& key,
+                          const ConfigNode& value,
                           std::optional<bool> legacy_optional) {
   Element e;
   e.is_group = true;
@@ -370,7 +372,9 @@ Element ParseGroupDefault(const std::string& config_path,
           fmt::format("In '{}': invalid defaults entry '{}': unknown keyword "
                       "'{}' (expected "
                       "'optional' or 'override')",
-                      config_path, key, words[i]));
+                      config_path,
+                      key,
+                      words[i]));
     }
   }
   if (!e.optional && legacy_optional.has_value()) e.optional = *legacy_optional;
@@ -399,7 +403,8 @@ Element ParseGroupDefault(const std::string& config_path,
         throw ConfigError(fmt::format(
             "In '{}': Unsupported item value in defaults : {}, nested list "
             "items must be strings",
-            config_path, PythonTypeName(item)));
+            config_path,
+            PythonTypeName(item)));
       }
       e.value.list.push_back(*s);
     }
@@ -407,7 +412,8 @@ Element ParseGroupDefault(const std::string& config_path,
     throw ConfigError(fmt::format(
         "In '{}': Unsupported item value in defaults : {}. Supported: string "
         "or list",
-        config_path, PythonTypeName(value)));
+        config_path,
+        PythonTypeName(value)));
   }
   return e;
 }
@@ -419,7 +425,8 @@ std::vector<Element> ParseDefaultsList(const std::string& config_path,
         defaults.IsMap() ? "mapping" : PythonTypeName(defaults);
     throw ConfigError(fmt::format(
         "Invalid defaults list in '{}', defaults must be a list (got {})",
-        config_path, type));
+        config_path,
+        type));
   }
   std::vector<Element> out;
   for (const ConfigNode& item : defaults.items()) {
@@ -457,17 +464,19 @@ std::vector<Element> ParseDefaultsList(const std::string& config_path,
       }
       if (entries.size() > 1) {
         throw ConfigError(fmt::format("In {}: Too many keys in default item {}",
-                                      config_path, DumpFlow(item)));
+                                      config_path,
+                                      DumpFlow(item)));
       }
       if (entries.empty()) {
-        throw ConfigError(fmt::format("In {}: Missing group name in {}",
-                                      config_path, DumpFlow(item)));
+        throw ConfigError(fmt::format(
+            "In {}: Missing group name in {}", config_path, DumpFlow(item)));
       }
-      out.push_back(ParseGroupDefault(config_path, entries[0].first,
-                                      entries[0].second, legacy_optional));
+      out.push_back(ParseGroupDefault(
+          config_path, entries[0].first, entries[0].second, legacy_optional));
     } else {
       throw ConfigError(
-          fmt::format("In '{}': Unsupported type in defaults : {}", config_path,
+          fmt::format("In '{}': Unsupported type in defaults : {}",
+                      config_path,
                       PythonTypeName(item)));
     }
   }
@@ -633,7 +642,8 @@ class DefaultsOverrides {
     deletions_[element.OverrideKey()].used = true;
   }
 
-  void SetKnownChoice(Element& element, bool external_append_input,
+  void SetKnownChoice(Element& element,
+                      bool external_append_input,
                       const std::string& append_input) {
     if (!element.is_group) return;
     element.choice_registered = true;
@@ -652,12 +662,15 @@ class DefaultsOverrides {
         throw ConfigError(
             fmt::format("Could not add '{}'. '{}' is already in the defaults "
                         "list.",
-                        input, key));
+                        input,
+                        key));
       }
       if (name != it->second) {
         throw ConfigError(fmt::format(
             "Multiple values for {}. To override a value use 'override {}: {}'",
-            key, key, it->second.value_or("null")));
+            key,
+            key,
+            it->second.value_or("null")));
       }
     }
     known_per_group_[element.GroupPath()].insert(key);
@@ -695,8 +708,8 @@ class DefaultsOverrides {
         msg = fmt::format("In '{}': {}", meta.containing_config, msg);
       }
       if (meta.external) {
-        msg += fmt::format(" To append to your default list use +{}={}", key,
-                           meta.value_text);
+        msg += fmt::format(
+            " To append to your default list use +{}={}", key, meta.value_text);
       }
       throw ConfigError(msg);
     }
@@ -807,7 +820,8 @@ std::string ResolveDefaultsInterpolation(
     }
     throw ConfigError(fmt::format(
         "Error resolving interpolation '{}', possible interpolation keys: {}",
-        text, Join(keys, ", ")));
+        text,
+        Join(keys, ", ")));
   }
   return out;
 }
@@ -817,8 +831,10 @@ std::string ResolveDefaultsInterpolation(
 
 class DefaultsTreeBuilder {
  public:
-  DefaultsTreeBuilder(const ConfigRepository& repo, ConfigLoader& loader,
-                      DefaultsOverrides& overrides, bool skip_missing)
+  DefaultsTreeBuilder(const ConfigRepository& repo,
+                      ConfigLoader& loader,
+                      DefaultsOverrides& overrides,
+                      bool skip_missing)
       : repo_(repo),
         loader_(loader),
         overrides_(overrides),
@@ -843,7 +859,8 @@ class DefaultsTreeBuilder {
       overrides_.Delete(parent);
       return;
     }
-    overrides_.SetKnownChoice(parent, parent.external_append,
+    overrides_.SetKnownChoice(parent,
+                              parent.external_append,
                               append_input_.contains(&root)
                                   ? append_input_.at(&root)
                                   : std::string());
@@ -868,8 +885,8 @@ class DefaultsTreeBuilder {
     }
     size_t first_append = defaults.size();
     if (is_root_config) {
-      defaults.insert(defaults.end(), overrides_.appends.begin(),
-                      overrides_.appends.end());
+      defaults.insert(
+          defaults.end(), overrides_.appends.begin(), overrides_.appends.end());
     }
     UpdateOverrides(defaults, parent, interpolated_subtree);
 
@@ -972,7 +989,8 @@ class DefaultsTreeBuilder {
     }
   }
 
-  void UpdateOverrides(std::vector<Element>& defaults, const Element& parent,
+  void UpdateOverrides(std::vector<Element>& defaults,
+                       const Element& parent,
                        bool interpolated_subtree) {
     bool seen_override = false;
     std::optional<Element> last_override;
@@ -985,8 +1003,11 @@ class DefaultsTreeBuilder {
         throw ConfigError(fmt::format(
             "In {}: Override '{} : {}' is defined before '{}: {}'. Overrides "
             "must be at the end of the defaults list",
-            parent.ConfigPath(), last_override->OverrideKey(),
-            last_override->NameText(), d.OverrideKey(), d.NameText()));
+            parent.ConfigPath(),
+            last_override->OverrideKey(),
+            last_override->NameText(),
+            d.OverrideKey(),
+            d.NameText()));
       }
       if (d.is_group && d.override) {
         seen_override = true;
@@ -995,7 +1016,9 @@ class DefaultsTreeBuilder {
           throw ConfigError(fmt::format(
               "{}: Default List Overrides are not allowed in the subtree of an "
               "in interpolated config group (override {}={}).",
-              parent.ConfigPath(), d.OverrideKey(), d.NameText()));
+              parent.ConfigPath(),
+              d.OverrideKey(),
+              d.NameText()));
         }
         overrides_.AddOverride(parent.ConfigPath(), d);
       }
@@ -1033,8 +1056,8 @@ class DefaultsTreeBuilder {
       const std::string group = e.GroupPath();
       const std::vector<std::string> options = repo_.Options(group);
       if (!options.empty()) {
-        msg += fmt::format(". Available options in '{}': {}", group,
-                           Join(options, ", "));
+        msg += fmt::format(
+            ". Available options in '{}': {}", group, Join(options, ", "));
       }
     } else {
       msg = fmt::format("Could not load '{}'.", e.ConfigPath());
@@ -1062,7 +1085,8 @@ struct ResultEntry {
   std::string override_key;  // group defaults only
 };
 
-void CollectResult(const TreeNode* tree, const Element& node,
+void CollectResult(const TreeNode* tree,
+                   const Element& node,
                    std::vector<ResultEntry>& out) {
   if (node.deleted || node.IsMissing() || node.dummy) return;
   if (!node.Name().has_value()) return;
@@ -1154,8 +1178,10 @@ ConfigNode* FindNode(ConfigNode& root, const std::vector<std::string>& segs) {
 
 /// Sets `segs` below `root`, creating maps for missing or scalar
 /// intermediates (OmegaConf.update with force_add).
-void ForceSet(ConfigNode& root, const std::vector<std::string>& segs,
-              ConfigNode value, const Override& o) {
+void ForceSet(ConfigNode& root,
+              const std::vector<std::string>& segs,
+              ConfigNode value,
+              const Override& o) {
   ConfigNode* node = &root;
   for (size_t i = 0; i + 1 < segs.size(); ++i) {
     ConfigNode* next = Child(*node, segs[i]);
@@ -1163,12 +1189,15 @@ void ForceSet(ConfigNode& root, const std::vector<std::string>& segs,
       if (node->IsList()) {
         throw ConfigError(
             fmt::format("Error merging override {}: no index '{}' in list '{}'",
-                        o.input, segs[i], node->path()));
+                        o.input,
+                        segs[i],
+                        node->path()));
       }
       if (!node->IsMap() && !node->IsNull()) {
         throw ConfigError(
             fmt::format("Error merging override {}: '{}' is not a container",
-                        o.input, node->path()));
+                        o.input,
+                        node->path()));
       }
       next = &node->Set(segs[i], ConfigNode::EmptyMap());
     }
@@ -1181,7 +1210,10 @@ void ForceSet(ConfigNode& root, const std::vector<std::string>& segs,
       throw ConfigError(fmt::format(
           "Error merging override {}: index '{}' is out of range for '{}' "
           "(size {})",
-          o.input, last, node->path(), node->size()));
+          o.input,
+          last,
+          node->path(),
+          node->size()));
     }
     *slot = std::move(value);
     return;
@@ -1189,7 +1221,8 @@ void ForceSet(ConfigNode& root, const std::vector<std::string>& segs,
   if (!node->IsMap() && !node->IsNull()) {
     throw ConfigError(
         fmt::format("Error merging override {}: '{}' is not a container",
-                    o.input, node->path()));
+                    o.input,
+                    node->path()));
   }
   node->Set(last, std::move(value));
 }
@@ -1219,7 +1252,8 @@ void ApplyValueOverride(ConfigNode& root, const Override& o) {
     throw ConfigError(fmt::format(
         "Override {} looks like a config group override, but config group "
         "'{}' does not exist.",
-        o.input, o.key));
+        o.input,
+        o.key));
   }
   const std::vector<std::string> segs = SplitKeyPath(o.key);
   if (segs.empty()) {
@@ -1241,7 +1275,9 @@ void ApplyValueOverride(ConfigNode& root, const Override& o) {
       if (o.value.has_value() && !ValuesEqual(*existing, *o.value)) {
         throw ConfigError(fmt::format(
             "Could not delete from config. The value of '{}' is {} and not {}.",
-            o.key, DumpFlow(*existing), DumpFlow(*o.value)));
+            o.key,
+            DumpFlow(*existing),
+            DumpFlow(*o.value)));
       }
       ConfigNode* parent = FindNode(
           root, std::vector<std::string>(segs.begin(), segs.end() - 1));
@@ -1268,7 +1304,10 @@ void ApplyValueOverride(ConfigNode& root, const Override& o) {
             "Could not append to config. An item is already at '{}'. Either "
             "remove + prefix: '{}' or add a second + to add or override '{}': "
             "'+{}'",
-            o.key, o.input.substr(1), o.key, o.input));
+            o.key,
+            o.input.substr(1),
+            o.key,
+            o.input));
       }
       return;
     }
@@ -1284,7 +1323,8 @@ void ApplyValueOverride(ConfigNode& root, const Override& o) {
       if (existing == nullptr || (existing->IsMap() && value.IsMap() &&
                                   !MergeAddsNoKeys(*existing, value))) {
         throw ConfigError(fmt::format(
-            "Could not override '{}'. To append to your config use +{}", o.key,
+            "Could not override '{}'. To append to your config use +{}",
+            o.key,
             o.input));
       }
       if (existing->IsMap() && value.IsMap()) {
@@ -1363,9 +1403,11 @@ std::vector<std::string> ReadHydraSearchPath(const ComposeRequest& request,
     if (item.IsString()) {
       out.push_back(item.AsString());
     } else if (item.IsInterpolation()) {
-      const ConfigNode resolved = ResolveString(
-          context, item.text(), fmt::format("hydra.searchpath[{}]", i),
-          DefaultResolvers());
+      const ConfigNode resolved =
+          ResolveString(context,
+                        item.text(),
+                        fmt::format("hydra.searchpath[{}]", i),
+                        DefaultResolvers());
       if (!resolved.IsString()) fail();
       out.push_back(resolved.AsString());
     } else {
@@ -1708,9 +1750,9 @@ ComposeResult Compose(const ComposeRequest& request) {
       job->Set("id", ConfigNode::LiteralString("0"));
     }
   }
-  job->Set("config_name", config_name.empty()
-                              ? ConfigNode::Null()
-                              : ConfigNode::LiteralString(config_name));
+  job->Set("config_name",
+           config_name.empty() ? ConfigNode::Null()
+                               : ConfigNode::LiteralString(config_name));
   {
     const ConfigNode* dirname_cfg = job->FindPath("config.override_dirname");
     const std::string kv_sep =
@@ -1770,11 +1812,19 @@ std::string FormatDefaultsList(const ComposeResult& result) {
     package_width = std::max(package_width, e.package.size());
     parent_width = std::max(parent_width, parent_of(e).size());
   }
-  const auto row = [&](std::string_view path, std::string_view package,
-                       std::string_view self, std::string_view parent) {
-    return fmt::format("| {:<{}} | {:<{}} | {:<{}} | {:<{}} |\n", path,
-                       path_width, package, package_width, self,
-                       kSelfHeader.size(), parent, parent_width);
+  const auto row = [&](std::string_view path,
+                       std::string_view package,
+                       std::string_view self,
+                       std::string_view parent) {
+    return fmt::format("| {:<{}} | {:<{}} | {:<{}} | {:<{}} |\n",
+                       path,
+                       path_width,
+                       package,
+                       package_width,
+                       self,
+                       kSelfHeader.size(),
+                       parent,
+                       parent_width);
   };
   const std::string header =
       row(kPathHeader, kPackageHeader, kSelfHeader, kParentHeader);
@@ -1783,8 +1833,8 @@ std::string FormatDefaultsList(const ComposeResult& result) {
   out += header;
   out += rule + "\n";
   for (const DefaultsListEntry& e : result.defaults) {
-    out += row(e.config_path, e.package, e.is_self ? "True" : "False",
-               parent_of(e));
+    out += row(
+        e.config_path, e.package, e.is_self ? "True" : "False", parent_of(e));
   }
   out += rule + "\n";
   return out;

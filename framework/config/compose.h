@@ -2,16 +2,16 @@
 // config groups, defaults lists, packages, CLI overrides and the `hydra` node.
 #pragma once
 
+#include "framework/config/interpolation.h"
+#include "framework/config/node.h"
+#include "framework/config/override.h"
+
 #include <filesystem>
 #include <map>
 #include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include "framework/config/interpolation.h"
-#include "framework/config/node.h"
-#include "framework/config/override.h"
 
 namespace soma {
 
@@ -29,7 +29,8 @@ class ConfigRepository {
   bool IsGroup(std::string_view group) const;
   /// Sorted option names (file stems of `*.yaml`) of a group over all roots.
   std::vector<std::string> Options(std::string_view group) const;
-  /// Every group path (recursively, sorted), e.g. {"db", "server", "server/db"}.
+  /// Every group path (recursively, sorted), e.g. {"db", "server",
+  /// "server/db"}.
   std::vector<std::string> Groups() const;
   /// The file for config path "group/option" or "name" (first root wins).
   std::optional<std::filesystem::path> Find(std::string_view config_path) const;

@@ -1,10 +1,10 @@
 #include "framework/config/decode.h"
 
-#include <limits>
+#include "framework/core/error.h"
 
 #include <fmt/format.h>
 
-#include "framework/core/error.h"
+#include <limits>
 
 namespace soma {
 namespace {
@@ -22,10 +22,11 @@ std::string SourceSuffix(const ConfigNode& node) {
 
 ConfigReader::ConfigReader(const ConfigNode& node) : node_(node) {
   if (!node.IsMap() && !node.IsNull()) {
-    throw ConfigError(fmt::format(
-        "Invalid configuration. {} = {}. Expected a map{}",
-        node.path().empty() ? "<root>" : node.path(), node.Describe(),
-        SourceSuffix(node)));
+    throw ConfigError(
+        fmt::format("Invalid configuration. {} = {}. Expected a map{}",
+                    node.path().empty() ? "<root>" : node.path(),
+                    node.Describe(),
+                    SourceSuffix(node)));
   }
 }
 
@@ -43,9 +44,9 @@ void ConfigReader::Ignore(std::string_view key) {
 
 void ConfigReader::RequireKey(std::string_view key) const {
   if (!node_.IsMap() || node_.Find(key) == nullptr) {
-    throw ConfigError(fmt::format(
-        "Invalid configuration. Missing key '{}'{}", KeyPath(node_, key),
-        SourceSuffix(node_)));
+    throw ConfigError(fmt::format("Invalid configuration. Missing key '{}'{}",
+                                  KeyPath(node_, key),
+                                  SourceSuffix(node_)));
   }
 }
 
@@ -100,9 +101,11 @@ void ReadList(const ConfigNode* child, std::vector<T>* out, F&& convert) {
     return;
   }
   if (!child->IsList()) {
-    throw ConfigError(fmt::format("Invalid configuration. {} = {}. Expected a list{}",
-                                  child->path(), child->Describe(),
-                                  SourceSuffix(*child)));
+    throw ConfigError(
+        fmt::format("Invalid configuration. {} = {}. Expected a list{}",
+                    child->path(),
+                    child->Describe(),
+                    SourceSuffix(*child)));
   }
   out->clear();
   for (const ConfigNode& item : child->items()) out->push_back(convert(item));
@@ -119,18 +122,22 @@ void ConfigReader::Read(std::string_view key, std::vector<double>* out) {
 }
 
 void ConfigReader::Read(std::string_view key, std::vector<int>* out) {
-  ReadList(Get(key), out,
-           [](const ConfigNode& n) { return static_cast<int>(n.AsInt()); });
+  ReadList(Get(key), out, [](const ConfigNode& n) {
+    return static_cast<int>(n.AsInt());
+  });
 }
 
-void ConfigReader::Check(std::string_view key, bool ok,
+void ConfigReader::Check(std::string_view key,
+                         bool ok,
                          std::string_view constraint) const {
   if (ok) return;
   const ConfigNode* child = node_.IsMap() ? node_.Find(key) : nullptr;
-  throw ConfigError(fmt::format(
-      "Invalid configuration. {} = {}. Violated constraint: {}{}",
-      KeyPath(node_, key), child ? child->Describe() : std::string("<unset>"),
-      constraint, SourceSuffix(child ? *child : node_)));
+  throw ConfigError(
+      fmt::format("Invalid configuration. {} = {}. Violated constraint: {}{}",
+                  KeyPath(node_, key),
+                  child ? child->Describe() : std::string("<unset>"),
+                  constraint,
+                  SourceSuffix(child ? *child : node_)));
 }
 
 void ConfigReader::Finish() const {
@@ -143,8 +150,10 @@ void ConfigReader::Finish() const {
   std::vector<std::string> known(used_.begin(), used_.end());
   throw ConfigError(fmt::format(
       "Invalid configuration. {}: unknown key '{}'. Known keys: {}{}",
-      node_.path().empty() ? "<root>" : node_.path(), unknown.front(),
-      fmt::join(known, ", "), SourceSuffix(node_.at(unknown.front()))));
+      node_.path().empty() ? "<root>" : node_.path(),
+      unknown.front(),
+      fmt::join(known, ", "),
+      SourceSuffix(node_.at(unknown.front()))));
 }
 
 }  // namespace soma

@@ -12,14 +12,14 @@
 //   }
 #pragma once
 
+#include "framework/config/node.h"
+
 #include <cstdint>
 #include <set>
 #include <string>
 #include <string_view>
 #include <type_traits>
 #include <vector>
-
-#include "framework/config/node.h"
 
 namespace soma {
 

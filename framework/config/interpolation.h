@@ -9,6 +9,8 @@
 // the chain of keys.
 #pragma once
 
+#include "framework/config/node.h"
+
 #include <functional>
 #include <map>
 #include <mutex>
@@ -16,16 +18,14 @@
 #include <string_view>
 #include <vector>
 
-#include "framework/config/node.h"
-
 namespace soma {
 
 class ResolverRegistry;
 
 /// What a resolver sees when it is called.
 struct ResolverCall {
-  const ConfigNode* root = nullptr;      // the tree being resolved
-  std::string_view node_path;            // path of the node being resolved
+  const ConfigNode* root = nullptr;  // the tree being resolved
+  std::string_view node_path;        // path of the node being resolved
   const ResolverRegistry* registry = nullptr;
 };
 
@@ -62,7 +62,8 @@ class ResolverRegistry {
 /// Missing nodes (typed access then raises MissingMandatoryValue with the full
 /// path). Throws InterpolationKeyError / ConfigError (cycles: "Interpolation
 /// cycle: a -> b -> a").
-ConfigNode Select(const ConfigNode& root, std::string_view dotted,
+ConfigNode Select(const ConfigNode& root,
+                  std::string_view dotted,
                   const ResolverRegistry& resolvers);
 
 /// Resolves every interpolation of the tree (OmegaConf.resolve); missing
@@ -71,7 +72,8 @@ ConfigNode Resolve(const ConfigNode& root, const ResolverRegistry& resolvers);
 
 /// Resolves one string that may contain interpolations, in the context of
 /// `root` with `node_path` as the location of the string (for relative keys).
-ConfigNode ResolveString(const ConfigNode& root, std::string_view text,
+ConfigNode ResolveString(const ConfigNode& root,
+                         std::string_view text,
                          std::string_view node_path,
                          const ResolverRegistry& resolvers);
 

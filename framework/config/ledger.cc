@@ -1,16 +1,16 @@
 #include "framework/config/ledger.h"
 
-#include <algorithm>
-#include <cmath>
-#include <set>
-#include <sstream>
-
-#include <fmt/format.h>
-
 #include "framework/config/node.h"
 #include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <set>
+#include <sstream>
 
 namespace soma {
 namespace {
@@ -88,29 +88,35 @@ Ledger Ledger::Load(const std::filesystem::path& sweep_dir) {
       entry.status = JobStatusFromString(job.at("status").AsString());
       entry.attempts = static_cast<int>(job.at("attempts").AsInt());
       entry.wall_time_s = job.at("wall_time_s").AsDouble();
-      if (const ConfigNode* error = job.Find("error"); error && error->IsString()) {
+      if (const ConfigNode* error = job.Find("error");
+          error && error->IsString()) {
         entry.error = error->AsString();
       }
-      if (const ConfigNode* metrics = job.Find("metrics"); metrics && metrics->IsMap()) {
+      if (const ConfigNode* metrics = job.Find("metrics");
+          metrics && metrics->IsMap()) {
         for (const auto& [name, value] : metrics->entries()) {
-          entry.metrics[name] = value.IsString() ? std::nan("") : value.AsDouble();
+          entry.metrics[name] =
+              value.IsString() ? std::nan("") : value.AsDouble();
         }
       }
       ledger.entries_.push_back(std::move(entry));
     }
   } catch (const Error& e) {
-    throw IoError(fmt::format("Malformed sweep ledger '{}': {}", path.string(),
-                              e.what()));
+    throw IoError(fmt::format(
+        "Malformed sweep ledger '{}': {}", path.string(), e.what()));
   }
-  std::sort(ledger.entries_.begin(), ledger.entries_.end(),
-            [](const LedgerEntry& a, const LedgerEntry& b) { return a.num < b.num; });
+  std::sort(
+      ledger.entries_.begin(),
+      ledger.entries_.end(),
+      [](const LedgerEntry& a, const LedgerEntry& b) { return a.num < b.num; });
   return ledger;
 }
 
 LedgerEntry& Ledger::Entry(int num) {
   auto it = std::lower_bound(
-      entries_.begin(), entries_.end(), num,
-      [](const LedgerEntry& e, int n) { return e.num < n; });
+      entries_.begin(), entries_.end(), num, [](const LedgerEntry& e, int n) {
+        return e.num < n;
+      });
   if (it != entries_.end() && it->num == num) return *it;
   LedgerEntry entry;
   entry.num = num;
@@ -144,14 +150,16 @@ void Ledger::Save() const {
     job.Set("overrides", overrides);
     job.Set("config_hash", ConfigNode::LiteralString(e.config_hash));
     job.Set("dir", ConfigNode::LiteralString(e.dir));
-    job.Set("status", ConfigNode::LiteralString(std::string(ToString(e.status))));
+    job.Set("status",
+            ConfigNode::LiteralString(std::string(ToString(e.status))));
     job.Set("attempts", e.attempts);
     job.Set("wall_time_s", e.wall_time_s);
     job.Set("error", ConfigNode::LiteralString(e.error));
     ConfigNode metrics = ConfigNode::EmptyMap();
     for (const auto& [name, value] : e.metrics) {
-      metrics.Set(name, std::isnan(value) ? ConfigNode::LiteralString("nan")
-                                          : ConfigNode(value));
+      metrics.Set(name,
+                  std::isnan(value) ? ConfigNode::LiteralString("nan")
+                                    : ConfigNode(value));
       metric_names.insert(name);
     }
     job.Set("metrics", metrics);
@@ -181,12 +189,14 @@ void Ledger::Save() const {
   WriteFileAtomic(sweep_dir_ / "jobs.csv", csv.str());
 }
 
-std::vector<SummaryRow> SummarizeBySeed(const std::vector<LedgerEntry>& entries) {
+std::vector<SummaryRow> SummarizeBySeed(
+    const std::vector<LedgerEntry>& entries) {
   // Overrides shared by every job (e.g. task.steps=5 on the command line) say
   // nothing about a row; only the ones that vary across the sweep are shown.
   std::map<std::string, size_t> occurrences;
   for (const LedgerEntry& e : entries) {
-    for (const std::string& o : std::set<std::string>(e.overrides.begin(), e.overrides.end())) {
+    for (const std::string& o :
+         std::set<std::string>(e.overrides.begin(), e.overrides.end())) {
       ++occurrences[o];
     }
   }
@@ -257,8 +267,8 @@ void WriteSummary(const std::filesystem::path& sweep_dir,
       overrides += (i ? " " : "") + row.overrides[i];
     }
     csv << CsvEscape(overrides) << "," << row.num_done << "," << row.num_total;
-    md << "| " << (overrides.empty() ? "(base)" : "`" + overrides + "`") << " | "
-       << row.num_done << "/" << row.num_total << " |";
+    md << "| " << (overrides.empty() ? "(base)" : "`" + overrides + "`")
+       << " | " << row.num_done << "/" << row.num_total << " |";
     for (const std::string& name : metric_names) {
       auto it = row.metrics.find(name);
       if (it == row.metrics.end()) {

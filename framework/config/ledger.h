@@ -23,9 +23,9 @@ struct LedgerEntry {
   std::string config_hash;  // hash of the job's composed task config
   std::string dir;          // job output directory
   JobStatus status = JobStatus::kPending;
-  int attempts = 0;         // how many times the job was started
+  int attempts = 0;  // how many times the job was started
   double wall_time_s = 0;
-  std::string error;        // one-line error of the last failed attempt
+  std::string error;  // one-line error of the last failed attempt
   std::map<std::string, double> metrics;
 };
 
@@ -64,7 +64,8 @@ struct SummaryRow {
 /// Groups ledger entries by their non-seed overrides (keys `seed`, `+seed`,
 /// `++seed`), in first-appearance order, aggregating metrics of done jobs.
 /// Overrides common to every job are left out of the row keys.
-std::vector<SummaryRow> SummarizeBySeed(const std::vector<LedgerEntry>& entries);
+std::vector<SummaryRow> SummarizeBySeed(
+    const std::vector<LedgerEntry>& entries);
 
 /// Writes `summary.csv` and `summary.md` (mean ± std over seeds) into
 /// `sweep_dir`.

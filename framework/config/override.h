@@ -9,12 +9,12 @@
 //              int() float() str() bool()
 #pragma once
 
+#include "framework/config/node.h"
+
 #include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include "framework/config/node.h"
 
 namespace soma {
 

@@ -5,12 +5,12 @@
 // value. Sweeping over `hydra.*` is an error.
 #pragma once
 
-#include <string>
-#include <vector>
-
 #include "framework/config/compose.h"
 #include "framework/config/node.h"
 #include "framework/config/override.h"
+
+#include <string>
+#include <vector>
 
 namespace soma {
 
@@ -18,7 +18,8 @@ namespace soma {
 /// `sweep_root` is the sweep-level composed root (for hydra.sweeper.params);
 /// `repo` expands glob() over group options.
 std::vector<std::vector<std::string>> ExpandSweep(
-    const ConfigNode& sweep_root, const std::vector<Override>& cli,
+    const ConfigNode& sweep_root,
+    const std::vector<Override>& cli,
     const ConfigRepository& repo);
 
 }  // namespace soma

@@ -94,10 +94,11 @@ class CheckThrower {
 }  // namespace soma
 
 /// Throws soma::InternalError with `[file:line] Check failed: cond <message>`.
-#define SOMA_CHECK(cond) \
-  if (cond) {            \
-  } else                 \
-    ::soma::internal::CheckThrower<::soma::InternalError>(__FILE__, __LINE__, #cond)
+#define SOMA_CHECK(cond)                                   \
+  if (cond) {                                              \
+  } else                                                   \
+    ::soma::internal::CheckThrower<::soma::InternalError>( \
+        __FILE__, __LINE__, #cond)
 
 /// Like SOMA_CHECK but throws the given error type (e.g. soma::IoError).
 #define SOMA_CHECK_T(ErrorType, cond) \
@@ -105,9 +106,13 @@ class CheckThrower {
   } else                              \
     ::soma::internal::CheckThrower<ErrorType>(__FILE__, __LINE__, #cond)
 
-#define SOMA_CHECK_EQ(a, b) SOMA_CHECK((a) == (b)) << (a) << " vs " << (b) << " "
-#define SOMA_CHECK_NE(a, b) SOMA_CHECK((a) != (b)) << (a) << " vs " << (b) << " "
+#define SOMA_CHECK_EQ(a, b) \
+  SOMA_CHECK((a) == (b)) << (a) << " vs " << (b) << " "
+#define SOMA_CHECK_NE(a, b) \
+  SOMA_CHECK((a) != (b)) << (a) << " vs " << (b) << " "
 #define SOMA_CHECK_LT(a, b) SOMA_CHECK((a) < (b)) << (a) << " vs " << (b) << " "
-#define SOMA_CHECK_LE(a, b) SOMA_CHECK((a) <= (b)) << (a) << " vs " << (b) << " "
+#define SOMA_CHECK_LE(a, b) \
+  SOMA_CHECK((a) <= (b)) << (a) << " vs " << (b) << " "
 #define SOMA_CHECK_GT(a, b) SOMA_CHECK((a) > (b)) << (a) << " vs " << (b) << " "
-#define SOMA_CHECK_GE(a, b) SOMA_CHECK((a) >= (b)) << (a) << " vs " << (b) << " "
+#define SOMA_CHECK_GE(a, b) \
+  SOMA_CHECK((a) >= (b)) << (a) << " vs " << (b) << " "

@@ -1,15 +1,14 @@
 #include "framework/core/file.h"
 
-#include <fcntl.h>
-#include <unistd.h>
-
-#include <cerrno>
-#include <cstring>
-#include <sstream>
+#include "framework/core/error.h"
 
 #include <fmt/format.h>
 
-#include "framework/core/error.h"
+#include <cerrno>
+#include <cstring>
+#include <fcntl.h>
+#include <sstream>
+#include <unistd.h>
 
 namespace soma {
 namespace {
@@ -27,7 +26,8 @@ std::string ReadFile(const std::filesystem::path& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) {
     throw IoError(fmt::format("Cannot open '{}' for reading: {}",
-                              path.string(), std::strerror(errno)));
+                              path.string(),
+                              std::strerror(errno)));
   }
   std::ostringstream buffer;
   buffer << in.rdbuf();
@@ -42,8 +42,8 @@ void CreateDirectories(const std::filesystem::path& dir) {
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) {
-    throw IoError(fmt::format("Cannot create directory '{}': {}", dir.string(),
-                              ec.message()));
+    throw IoError(fmt::format(
+        "Cannot create directory '{}': {}", dir.string(), ec.message()));
   }
 }
 
@@ -54,8 +54,8 @@ void CommitTempFile(const std::filesystem::path& temp,
   std::filesystem::rename(temp, path, ec);
   if (ec) {
     std::filesystem::remove(temp, ec);
-    throw IoError(fmt::format("Cannot rename '{}' to '{}'", temp.string(),
-                              path.string()));
+    throw IoError(fmt::format(
+        "Cannot rename '{}' to '{}'", temp.string(), path.string()));
   }
 }
 
@@ -74,7 +74,8 @@ AtomicFileWriter::AtomicFileWriter(std::filesystem::path path,
   stream_.open(temp_path_, mode);
   if (!stream_) {
     throw IoError(fmt::format("Cannot open '{}' for writing: {}",
-                              temp_path_.string(), std::strerror(errno)));
+                              temp_path_.string(),
+                              std::strerror(errno)));
   }
 }
 

@@ -1,14 +1,13 @@
 #include "framework/core/image.h"
 
-#include <zlib.h>
-
-#include <algorithm>
-#include <cmath>
+#include "framework/core/error.h"
+#include "framework/core/file.h"
 
 #include <fmt/format.h>
 
-#include "framework/core/error.h"
-#include "framework/core/file.h"
+#include <algorithm>
+#include <cmath>
+#include <zlib.h>
 
 namespace soma {
 namespace {
@@ -120,22 +119,31 @@ void AppendU32(std::vector<uint8_t>& out, uint32_t v) {
   out.push_back(static_cast<uint8_t>(v));
 }
 
-void AppendChunk(std::vector<uint8_t>& out, const char type[4],
+void AppendChunk(std::vector<uint8_t>& out,
+                 const char type[4],
                  const std::vector<uint8_t>& data) {
   AppendU32(out, static_cast<uint32_t>(data.size()));
   const size_t start = out.size();
   out.insert(out.end(), type, type + 4);
   out.insert(out.end(), data.begin(), data.end());
-  const uLong crc = crc32(0L, out.data() + start, static_cast<uInt>(out.size() - start));
+  const uLong crc =
+      crc32(0L, out.data() + start, static_cast<uInt>(out.size() - start));
   AppendU32(out, static_cast<uint32_t>(crc));
 }
 
 }  // namespace
 
 Rgb CategoricalColor(int index) {
-  static constexpr Rgb kPalette[10] = {
-      {31, 119, 180}, {255, 127, 14}, {44, 160, 44},   {214, 39, 40},  {148, 103, 189},
-      {140, 86, 75},  {227, 119, 194}, {127, 127, 127}, {188, 189, 34}, {23, 190, 207}};
+  static constexpr Rgb kPalette[10] = {{31, 119, 180},
+                                       {255, 127, 14},
+                                       {44, 160, 44},
+                                       {214, 39, 40},
+                                       {148, 103, 189},
+                                       {140, 86, 75},
+                                       {227, 119, 194},
+                                       {127, 127, 127},
+                                       {188, 189, 34},
+                                       {23, 190, 207}};
   return kPalette[((index % 10) + 10) % 10];
 }
 
@@ -180,8 +188,8 @@ void Image::DrawRect(int x0, int y0, int x1, int y1, Rgb color) {
   DrawLine(x0, y1, x0, y0, color);
 }
 
-void Image::DrawLine(double x0, double y0, double x1, double y1, Rgb color,
-                     double thickness) {
+void Image::DrawLine(
+    double x0, double y0, double x1, double y1, Rgb color, double thickness) {
   const double length = std::hypot(x1 - x0, y1 - y0);
   const int steps = std::max(1, static_cast<int>(std::ceil(length * 2)));
   const double radius = std::max(0.5, thickness / 2);
@@ -189,7 +197,9 @@ void Image::DrawLine(double x0, double y0, double x1, double y1, Rgb color,
     const double t = i / static_cast<double>(steps);
     const double x = x0 + t * (x1 - x0), y = y0 + t * (y1 - y0);
     if (thickness <= 1.0) {
-      Set(static_cast<int>(std::lround(x)), static_cast<int>(std::lround(y)), color);
+      Set(static_cast<int>(std::lround(x)),
+          static_cast<int>(std::lround(y)),
+          color);
     } else {
       FillCircle(x, y, radius, color);
     }
@@ -214,7 +224,8 @@ int Image::TextWidth(std::string_view text, int scale) {
   return static_cast<int>(text.size()) * 6 * scale;
 }
 
-void Image::DrawText(int x, int y, std::string_view text, Rgb color, int scale) {
+void Image::DrawText(
+    int x, int y, std::string_view text, Rgb color, int scale) {
   int cursor = x;
   for (char raw : text) {
     char c = raw;
@@ -224,8 +235,11 @@ void Image::DrawText(int x, int y, std::string_view text, Rgb color, int scale) 
     for (int row = 0; row < 7; ++row) {
       for (int col = 0; col < 5; ++col) {
         if (glyph[row] & (0x10 >> col)) {
-          FillRect(cursor + col * scale, y + row * scale, cursor + (col + 1) * scale - 1,
-                   y + (row + 1) * scale - 1, color);
+          FillRect(cursor + col * scale,
+                   y + row * scale,
+                   cursor + (col + 1) * scale - 1,
+                   y + (row + 1) * scale - 1,
+                   color);
         }
       }
     }
@@ -243,8 +257,11 @@ std::vector<uint8_t> Image::EncodePng() const {
   }
   uLongf compressed_size = compressBound(static_cast<uLong>(raw.size()));
   std::vector<uint8_t> compressed(compressed_size);
-  if (compress2(compressed.data(), &compressed_size, raw.data(),
-                static_cast<uLong>(raw.size()), 6) != Z_OK) {
+  if (compress2(compressed.data(),
+                &compressed_size,
+                raw.data(),
+                static_cast<uLong>(raw.size()),
+                6) != Z_OK) {
     throw InternalError("zlib compress2 failed while encoding a PNG");
   }
   compressed.resize(compressed_size);
@@ -262,7 +279,9 @@ std::vector<uint8_t> Image::EncodePng() const {
 
 void Image::WritePng(const std::filesystem::path& path) const {
   const std::vector<uint8_t> png = EncodePng();
-  WriteFileAtomic(path, std::string_view(reinterpret_cast<const char*>(png.data()), png.size()));
+  WriteFileAtomic(
+      path,
+      std::string_view(reinterpret_cast<const char*>(png.data()), png.size()));
 }
 
 }  // namespace soma

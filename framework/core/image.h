@@ -38,7 +38,11 @@ class Image {
   void FillRect(int x0, int y0, int x1, int y1, Rgb color);
   void DrawRect(int x0, int y0, int x1, int y1, Rgb color);
   /// A line of the given thickness (pixels) between two points.
-  void DrawLine(double x0, double y0, double x1, double y1, Rgb color,
+  void DrawLine(double x0,
+                double y0,
+                double x1,
+                double y1,
+                Rgb color,
                 double thickness = 1.0);
   void FillCircle(double cx, double cy, double radius, Rgb color);
   /// Text with its top-left corner at (x, y); `scale` multiplies the 5x7

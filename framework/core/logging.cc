@@ -1,12 +1,11 @@
 #include "framework/core/logging.h"
 
-#include <sys/time.h>
-
 #include <chrono>
 #include <cstdio>
 #include <ctime>
 #include <fstream>
 #include <mutex>
+#include <sys/time.h>
 
 namespace soma {
 namespace {
@@ -53,14 +52,17 @@ std::string LogTimestamp() {
   return fmt::format("{},{:03d}", buffer, static_cast<int>(millis));
 }
 
-void Logger::Write(LogLevel level, std::string_view logger,
+void Logger::Write(LogLevel level,
+                   std::string_view logger,
                    std::string_view message) {
   LogState& state = State();
   std::lock_guard<std::mutex> lock(state.mutex);
   const std::string line =
-      fmt::format("[{}][{}][{}] - {}\n", LogTimestamp(),
+      fmt::format("[{}][{}][{}] - {}\n",
+                  LogTimestamp(),
                   logger.empty() ? std::string_view(state.name) : logger,
-                  ToString(level), message);
+                  ToString(level),
+                  message);
   if (level >= state.console_level) {
     std::fputs(line.c_str(), stderr);
     std::fflush(stderr);

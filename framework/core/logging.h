@@ -5,10 +5,10 @@
 // sink is the one piece of process-wide mutable state besides the registries.
 #pragma once
 
+#include <fmt/format.h>
+
 #include <string>
 #include <string_view>
-
-#include <fmt/format.h>
 
 namespace soma {
 
@@ -21,7 +21,8 @@ class Logger {
  public:
   /// Writes one formatted line to the console (if `level` passes the
   /// threshold) and to the log file (always, when one is open).
-  static void Write(LogLevel level, std::string_view logger,
+  static void Write(LogLevel level,
+                    std::string_view logger,
                     std::string_view message);
 
   /// Opens (appends to) `path` as the log file; closes any previous one.
@@ -46,6 +47,6 @@ inline constexpr LogLevel kLog_ERROR = LogLevel::kError;
 
 /// SOMA_LOG(INFO, "epoch {} loss {:.4f}", epoch, loss); levels DEBUG, INFO,
 /// WARNING, ERROR.
-#define SOMA_LOG(LEVEL, ...)                                        \
-  ::soma::Logger::Write(::soma::internal::kLog_##LEVEL, "", \
-                        ::fmt::format(__VA_ARGS__))
+#define SOMA_LOG(LEVEL, ...) \
+  ::soma::Logger::Write(     \
+      ::soma::internal::kLog_##LEVEL, "", ::fmt::format(__VA_ARGS__))

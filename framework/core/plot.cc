@@ -1,10 +1,10 @@
 #include "framework/core/plot.h"
 
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
-
-#include <fmt/format.h>
 
 namespace soma {
 namespace {
@@ -24,7 +24,9 @@ struct Frame {
   double Y(double y) const { return py1 - (y - y0) / (y1 - y0) * (py1 - py0); }
 };
 
-void DrawAxes(Image& image, const Frame& f, const PlotOptions& options,
+void DrawAxes(Image& image,
+              const Frame& f,
+              const PlotOptions& options,
               bool x_ticks) {
   for (double t : NiceTicks(f.y0, f.y1)) {
     const int y = static_cast<int>(std::lround(f.Y(t)));
@@ -41,10 +43,15 @@ void DrawAxes(Image& image, const Frame& f, const PlotOptions& options,
     }
   }
   image.DrawRect(f.px0, f.py0, f.px1, f.py1, kBlack);
-  image.DrawText((image.width() - Image::TextWidth(options.title, 2)) / 2, 10,
-                 options.title, kBlack, 2);
+  image.DrawText((image.width() - Image::TextWidth(options.title, 2)) / 2,
+                 10,
+                 options.title,
+                 kBlack,
+                 2);
   image.DrawText((f.px0 + f.px1 - Image::TextWidth(options.x_label)) / 2,
-                 image.height() - 16, options.x_label, kBlack);
+                 image.height() - 16,
+                 options.x_label,
+                 kBlack);
   image.DrawText(4, f.py0 - 14, options.y_label, kBlack);
 }
 
@@ -67,13 +74,15 @@ std::vector<double> NiceTicks(double lo, double hi, int target) {
     step = m * magnitude;
     if (step >= raw) break;
   }
-  for (double t = std::ceil(lo / step) * step; t <= hi + 1e-9 * step; t += step) {
+  for (double t = std::ceil(lo / step) * step; t <= hi + 1e-9 * step;
+       t += step) {
     ticks.push_back(std::abs(t) < 1e-12 * step ? 0.0 : t);
   }
   return ticks;
 }
 
-Image LinePlot(const std::vector<PlotSeries>& series, const PlotOptions& options) {
+Image LinePlot(const std::vector<PlotSeries>& series,
+               const PlotOptions& options) {
   Image image(options.width, options.height);
   double xmin = std::numeric_limits<double>::infinity(), xmax = -xmin;
   double ymin = xmin, ymax = -xmin;
@@ -89,7 +98,13 @@ Image LinePlot(const std::vector<PlotSeries>& series, const PlotOptions& options
   auto [y0, y1] = options.y_range ? *options.y_range : Padded(ymin, ymax);
   auto [x0, x1] = std::isfinite(xmin) && xmax > xmin ? std::pair{xmin, xmax}
                                                      : Padded(xmin, xmax);
-  const Frame f{x0, x1, y0, y1, kLeft, options.width - kRight, kTop,
+  const Frame f{x0,
+                x1,
+                y0,
+                y1,
+                kLeft,
+                options.width - kRight,
+                kTop,
                 options.height - kBottom};
   DrawAxes(image, f, options, true);
   for (size_t k = 0; k < series.size(); ++k) {
@@ -97,7 +112,8 @@ Image LinePlot(const std::vector<PlotSeries>& series, const PlotOptions& options
     const Rgb color = CategoricalColor(static_cast<int>(k));
     for (size_t i = 1; i < s.x.size() && i < s.y.size(); ++i) {
       if (!std::isfinite(s.y[i - 1]) || !std::isfinite(s.y[i])) continue;
-      image.DrawLine(f.X(s.x[i - 1]), f.Y(s.y[i - 1]), f.X(s.x[i]), f.Y(s.y[i]), color, 2);
+      image.DrawLine(
+          f.X(s.x[i - 1]), f.Y(s.y[i - 1]), f.X(s.x[i]), f.Y(s.y[i]), color, 2);
     }
     if (s.x.size() == 1) image.FillCircle(f.X(s.x[0]), f.Y(s.y[0]), 3, color);
     // Legend.
@@ -109,7 +125,8 @@ Image LinePlot(const std::vector<PlotSeries>& series, const PlotOptions& options
 }
 
 Image BarChart(const std::vector<std::string>& categories,
-               const std::vector<double>& values, const PlotOptions& options) {
+               const std::vector<double>& values,
+               const PlotOptions& options) {
   Image image(options.width, options.height);
   double ymax = 0, ymin = 0;
   for (double v : values) {
@@ -117,10 +134,17 @@ Image BarChart(const std::vector<std::string>& categories,
     ymax = std::max(ymax, v);
     ymin = std::min(ymin, v);
   }
-  auto [y0, y1] = options.y_range ? *options.y_range
-                                  : std::pair{ymin, ymax > ymin ? ymax * 1.05 : 1.0};
+  auto [y0, y1] = options.y_range
+                      ? *options.y_range
+                      : std::pair{ymin, ymax > ymin ? ymax * 1.05 : 1.0};
   const int n = static_cast<int>(std::max<size_t>(1, values.size()));
-  const Frame f{0, static_cast<double>(n), y0, y1, kLeft, options.width - kRight, kTop,
+  const Frame f{0,
+                static_cast<double>(n),
+                y0,
+                y1,
+                kLeft,
+                options.width - kRight,
+                kTop,
                 options.height - kBottom};
   DrawAxes(image, f, options, false);
   const double slot = static_cast<double>(f.px1 - f.px0) / n;
@@ -128,14 +152,20 @@ Image BarChart(const std::vector<std::string>& categories,
     if (!std::isfinite(values[i])) continue;
     const int bx0 = static_cast<int>(f.px0 + i * slot + slot * 0.15);
     const int bx1 = static_cast<int>(f.px0 + (i + 1) * slot - slot * 0.15);
-    image.FillRect(bx0, static_cast<int>(f.Y(values[i])), bx1,
-                   static_cast<int>(f.Y(std::max(0.0, y0))), CategoricalColor(0));
+    image.FillRect(bx0,
+                   static_cast<int>(f.Y(values[i])),
+                   bx1,
+                   static_cast<int>(f.Y(std::max(0.0, y0))),
+                   CategoricalColor(0));
     if (i < static_cast<int>(categories.size())) {
       const std::string& label = categories[i];
       const int max_chars = std::max(1, static_cast<int>(slot / 6));
       const std::string shown = label.substr(0, max_chars);
-      image.DrawText(static_cast<int>(f.px0 + (i + 0.5) * slot) - Image::TextWidth(shown) / 2,
-                     f.py1 + 6, shown, kBlack);
+      image.DrawText(static_cast<int>(f.px0 + (i + 0.5) * slot) -
+                         Image::TextWidth(shown) / 2,
+                     f.py1 + 6,
+                     shown,
+                     kBlack);
     }
   }
   return image;

@@ -3,12 +3,12 @@
 // are made by the notebooks in notebooks/ from results/ CSVs.
 #pragma once
 
+#include "framework/core/image.h"
+
 #include <optional>
 #include <string>
 #include <utility>
 #include <vector>
-
-#include "framework/core/image.h"
 
 namespace soma {
 
@@ -28,12 +28,14 @@ struct PlotSeries {
 };
 
 /// Line plot of one or more series with axes, ticks, grid and a legend.
-Image LinePlot(const std::vector<PlotSeries>& series, const PlotOptions& options);
+Image LinePlot(const std::vector<PlotSeries>& series,
+               const PlotOptions& options);
 
 /// Bar chart: one bar per category (labels drawn below, rotated text is not
 /// supported, so keep them short).
 Image BarChart(const std::vector<std::string>& categories,
-               const std::vector<double>& values, const PlotOptions& options);
+               const std::vector<double>& values,
+               const PlotOptions& options);
 
 /// "Nice" tick positions covering [lo, hi] (1-2-5 steps), about `target` of
 /// them.

@@ -1,11 +1,10 @@
 #include "framework/core/progress.h"
 
-#include <unistd.h>
+#include <fmt/format.h>
 
 #include <algorithm>
 #include <cstdio>
-
-#include <fmt/format.h>
+#include <unistd.h>
 
 namespace soma {
 
@@ -41,12 +40,18 @@ std::string ProgressBar::StatusLine() const {
   bar.resize(kWidth, '.');
   const double rate = Rate();
   const double eta = rate > 0 ? static_cast<double>(total_ - done_) / rate : -1;
-  std::string line = fmt::format(
-      "{}{}[{}] {:3.0f}% {}/{} | {:.1f} {}/s | {} elapsed, ETA {}",
-      options_.label, options_.label.empty() ? "" : " ", bar, 100 * fraction,
-      done_, total_, rate, options_.unit,
-      FormatDuration(timer_.ElapsedSeconds()),
-      done_ >= total_ ? "0.0s" : FormatDuration(eta));
+  std::string line =
+      fmt::format("{}{}[{}] {:3.0f}% {}/{} | {:.1f} {}/s | {} elapsed, ETA {}",
+                  options_.label,
+                  options_.label.empty() ? "" : " ",
+                  bar,
+                  100 * fraction,
+                  done_,
+                  total_,
+                  rate,
+                  options_.unit,
+                  FormatDuration(timer_.ElapsedSeconds()),
+                  done_ >= total_ ? "0.0s" : FormatDuration(eta));
   if (!postfix_.empty()) line += " | " + postfix_;
   return line;
 }

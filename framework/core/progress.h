@@ -1,14 +1,14 @@
 // A progress bar with rate and ETA.
 //
 // On a terminal it redraws one line on stderr (at most 10 times a second); when
-// stderr is not a terminal (CI, a log file) it prints a plain line at most every
-// `plain_interval_s` seconds and one at the end, so logs stay readable.
+// stderr is not a terminal (CI, a log file) it prints a plain line at most
+// every `plain_interval_s` seconds and one at the end, so logs stay readable.
 #pragma once
+
+#include "framework/core/timer.h"
 
 #include <cstdint>
 #include <string>
-
-#include "framework/core/timer.h"
 
 namespace soma {
 

@@ -1,15 +1,14 @@
 #include "framework/core/provenance.h"
 
-#include <unistd.h>
+#include "framework/core/build_info.h"
+
+#include <fmt/format.h>
 
 #include <array>
 #include <cstdio>
 #include <ctime>
 #include <memory>
-
-#include <fmt/format.h>
-
-#include "framework/core/build_info.h"
+#include <unistd.h>
 
 namespace soma {
 namespace {
@@ -78,9 +77,12 @@ BuildInfo GetBuildInfo() {
   info.compiler = SOMA_CXX_COMPILER;
   info.build_type = SOMA_BUILD_TYPE;
   const std::pair<const char*, const char*> libs[] = {
-      {"fmt", SOMA_FMT_VERSION},         {"yaml-cpp", SOMA_YAML_CPP_VERSION},
-      {"libtorch", SOMA_TORCH_VERSION},  {"eigen", SOMA_EIGEN_VERSION},
-      {"ceres", SOMA_CERES_VERSION},     {"hdf5", SOMA_HDF5_VERSION},
+      {"fmt", SOMA_FMT_VERSION},
+      {"yaml-cpp", SOMA_YAML_CPP_VERSION},
+      {"libtorch", SOMA_TORCH_VERSION},
+      {"eigen", SOMA_EIGEN_VERSION},
+      {"ceres", SOMA_CERES_VERSION},
+      {"hdf5", SOMA_HDF5_VERSION},
   };
   for (const auto& [name, version] : libs) {
     if (version[0] != '\0') info.libraries.emplace_back(name, version);

@@ -1,9 +1,9 @@
 #include "framework/core/random.h"
 
+#include "framework/core/error.h"
+
 #include <cmath>
 #include <numeric>
-
-#include "framework/core/error.h"
 
 namespace soma {
 namespace {

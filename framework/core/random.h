@@ -1,8 +1,8 @@
 // Seeded random streams with named sub-streams.
 //
 // One seed in the config drives every random stream. A component asks for
-// `rng.Stream("noise/occlusion")`; the sub-stream's seed is a hash of the parent
-// seed and the name, so adding a component (a new name) never shifts the
+// `rng.Stream("noise/occlusion")`; the sub-stream's seed is a hash of the
+// parent seed and the name, so adding a component (a new name) never shifts the
 // numbers another component draws. All distributions are implemented here
 // (not std::*_distribution, whose output is implementation-defined), so the
 // same seed gives the same numbers with any standard library.

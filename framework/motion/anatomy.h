@@ -7,11 +7,11 @@
 // JointLimits() gives the normal active range of motion of each angle.
 #pragma once
 
-#include <array>
+#include "framework/body/body_model.h"
 
 #include <Eigen/Core>
 
-#include "framework/body/body_model.h"
+#include <array>
 
 namespace soma {
 
@@ -58,7 +58,8 @@ using AnatomicalPose = std::array<JointAngles, kNumCoreJoints>;
 /// translation) to a BodyPose with `num_joints` joints (extra joints zero).
 BodyPose ToBodyPose(const AnatomicalPose& angles,
                     const Eigen::Vector3d& root_orientation,
-                    const Eigen::Vector3d& translation, int num_joints);
+                    const Eigen::Vector3d& translation,
+                    int num_joints);
 
 /// The natural standing pose: arms hanging (shoulder abduction -80 deg),
 /// slight elbow flexion; everything else zero.

@@ -3,14 +3,14 @@
 // size, decides real-data accuracy).
 #pragma once
 
+#include "framework/body/body_model.h"
+#include "framework/motion/pose_sequence.h"
+
 #include <array>
 #include <filesystem>
 #include <map>
 #include <string>
 #include <vector>
-
-#include "framework/body/body_model.h"
-#include "framework/motion/pose_sequence.h"
 
 namespace soma {
 
@@ -40,6 +40,7 @@ CoverageReport ComputeCoverage(const BodyModel& body,
 /// Writes `coverage.md` (numbers), `coverage.csv` (per-joint table) and the
 /// plots `coverage_tilt.png`, `coverage_pelvis_height.png`,
 /// `coverage_joints.png` into `dir`.
-void WriteCoverageReport(const CoverageReport& report, const std::filesystem::path& dir);
+void WriteCoverageReport(const CoverageReport& report,
+                         const std::filesystem::path& dir);
 
 }  // namespace soma

@@ -4,14 +4,14 @@
 // `motion=<name>` (configs/motion/).
 #pragma once
 
+#include "framework/body/body_model.h"
+#include "framework/core/random.h"
+#include "framework/motion/pose_sequence.h"
+
 #include <cstdint>
 #include <string>
 #include <string_view>
 #include <vector>
-
-#include "framework/body/body_model.h"
-#include "framework/core/random.h"
-#include "framework/motion/pose_sequence.h"
 
 namespace soma {
 
@@ -29,7 +29,9 @@ struct SplitFractions {
   double test = 0.1;
 };
 
-Split SplitOf(std::string_view clip_name, uint64_t seed, const SplitFractions& fractions);
+Split SplitOf(std::string_view clip_name,
+              uint64_t seed,
+              const SplitFractions& fractions);
 
 class MotionSource {
  public:
@@ -38,8 +40,10 @@ class MotionSource {
 
   /// The clips of `split`, retargeted to `body` (its mean shape) and
   /// resampled to `frame_rate`. Random choices draw from `rng`.
-  virtual std::vector<PoseSequence> Load(const BodyModel& body, Split split,
-                                         double frame_rate, Rng& rng) const = 0;
+  virtual std::vector<PoseSequence> Load(const BodyModel& body,
+                                         Split split,
+                                         double frame_rate,
+                                         Rng& rng) const = 0;
 };
 
 /// Registers the motion sources and the `motion` config group.

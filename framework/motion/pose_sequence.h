@@ -1,10 +1,10 @@
 // A sequence of body poses: the output of every motion source.
 #pragma once
 
+#include "framework/body/body_model.h"
+
 #include <string>
 #include <vector>
-
-#include "framework/body/body_model.h"
 
 namespace soma {
 

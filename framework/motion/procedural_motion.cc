@@ -1,16 +1,16 @@
 #include "framework/motion/procedural_motion.h"
 
+#include "framework/core/error.h"
+#include "framework/motion/anatomy.h"
+
+#include <Eigen/Geometry>
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <functional>
 #include <limits>
 #include <map>
-
-#include <Eigen/Geometry>
-#include <fmt/format.h>
-
-#include "framework/core/error.h"
-#include "framework/motion/anatomy.h"
 
 namespace soma {
 namespace {
@@ -58,8 +58,10 @@ Eigen::Quaterniond AxisRotation(double angle, const Eigen::Vector3d& axis) {
 Eigen::Quaterniond RandomRotation(Rng& rng) {
   const double u1 = rng.Uniform(), u2 = rng.Uniform(), u3 = rng.Uniform();
   const double a = std::sqrt(1 - u1), b = std::sqrt(u1);
-  return Eigen::Quaterniond(a * std::sin(kTwoPi * u2), a * std::cos(kTwoPi * u2),
-                            b * std::sin(kTwoPi * u3), b * std::cos(kTwoPi * u3))
+  return Eigen::Quaterniond(a * std::sin(kTwoPi * u2),
+                            a * std::cos(kTwoPi * u2),
+                            b * std::sin(kTwoPi * u3),
+                            b * std::cos(kTwoPi * u3))
       .normalized();
 }
 
@@ -71,7 +73,8 @@ JointAngles Mix(const JointAngles& a, const JointAngles& b, double w) {
 
 Frame Blend(const Frame& a, const Frame& b, double w) {
   Frame f;
-  for (int j = 0; j < kNumCoreJoints; ++j) f.angles[j] = Mix(a.angles[j], b.angles[j], w);
+  for (int j = 0; j < kNumCoreJoints; ++j)
+    f.angles[j] = Mix(a.angles[j], b.angles[j], w);
   f.root = a.root.slerp(w, b.root);
   f.xy = a.xy + w * (b.xy - a.xy);
   f.lift = a.lift + w * (b.lift - a.lift);
@@ -103,24 +106,34 @@ class Keyframes {
 std::vector<Frame> Sample(const Keyframes& keys, const Clip& clip) {
   std::vector<Frame> frames(clip.num_frames);
   for (int i = 0; i < clip.num_frames; ++i) {
-    frames[i] = keys.At(clip.num_frames > 1 ? i / double(clip.num_frames - 1) : 0.0);
+    frames[i] =
+        keys.At(clip.num_frames > 1 ? i / double(clip.num_frames - 1) : 0.0);
   }
   return frames;
 }
 
-void SetBoth(AnatomicalPose& p, int left, int right, const JointAngles& angles) {
+void SetBoth(AnatomicalPose& p,
+             int left,
+             int right,
+             const JointAngles& angles) {
   p[left] = angles;
   p[right] = angles;
 }
 
-void SetSpine(AnatomicalPose& p, double flexion, double lateral = 0, double twist = 0) {
+void SetSpine(AnatomicalPose& p,
+              double flexion,
+              double lateral = 0,
+              double twist = 0) {
   for (int j : {kSpine1, kSpine2, kSpine3}) {
     p[j] = {flexion / 3, lateral / 3, twist / 3};
   }
 }
 
 /// Arms hanging with a given extra shoulder flexion (swing) per side.
-void ArmSwing(AnatomicalPose& p, double left_swing, double right_swing, double elbow) {
+void ArmSwing(AnatomicalPose& p,
+              double left_swing,
+              double right_swing,
+              double elbow) {
   p[kLeftShoulder] = {left_swing, -80 * kDeg, 0};
   p[kRightShoulder] = {right_swing, -80 * kDeg, 0};
   p[kLeftElbow].flexion = elbow;
@@ -132,9 +145,9 @@ void ArmSwing(AnatomicalPose& p, double left_swing, double right_swing, double e
 
 /// Walk (or run) cycle. Phase 0 = left heel strike.
 std::vector<Frame> Gait(const Clip& clip, bool run) {
-  const double speed = run ? clip.U(2.0, 4.5) : clip.U(0.6, 1.7);       // m/s
-  const double cadence = run ? clip.U(2.6, 3.2) : clip.U(1.6, 2.1);     // steps/s
-  const double stride_freq = cadence / 2;                                 // cycles/s
+  const double speed = run ? clip.U(2.0, 4.5) : clip.U(0.6, 1.7);    // m/s
+  const double cadence = run ? clip.U(2.6, 3.2) : clip.U(1.6, 2.1);  // steps/s
+  const double stride_freq = cadence / 2;                            // cycles/s
   const double hip_amp = (run ? clip.U(35, 50) : clip.U(20, 30)) * kDeg;
   const double knee_peak = (run ? clip.U(90, 120) : clip.U(55, 70)) * kDeg;
   const double arm_amp = (run ? clip.U(35, 60) : clip.U(10, 30)) * kDeg;
@@ -160,7 +173,10 @@ std::vector<Frame> Gait(const Clip& clip, bool run) {
       p[knee].flexion = knee_peak * swing * swing + knee_peak * loading;
       p[ankle].flexion = 15 * kDeg * std::sin(ph - 0.5);
     }
-    ArmSwing(p, -arm_amp * std::cos(phase), -arm_amp * std::cos(phase + M_PI), elbow);
+    ArmSwing(p,
+             -arm_amp * std::cos(phase),
+             -arm_amp * std::cos(phase + M_PI),
+             elbow);
     SetSpine(p, lean, 0, 6 * kDeg * std::cos(phase));
     p[kPelvis].twist = -5 * kDeg * std::cos(phase);
     f.root = Yaw(heading);
@@ -205,7 +221,10 @@ std::vector<Frame> Squat(const Clip& clip) {
   Frame stand = Standing(clip, heading);
   Frame down = stand;
   const double hip = (60 + 60 * depth) * kDeg, knee = (60 + 70 * depth) * kDeg;
-  SetBoth(down.angles, kLeftHip, kRightHip, {hip, clip.U(5, 20) * kDeg, -10 * kDeg});
+  SetBoth(down.angles,
+          kLeftHip,
+          kRightHip,
+          {hip, clip.U(5, 20) * kDeg, -10 * kDeg});
   SetBoth(down.angles, kLeftKnee, kRightKnee, {knee, 0, 0});
   SetBoth(down.angles, kLeftAnkle, kRightAnkle, {-clip.U(15, 25) * kDeg, 0, 0});
   SetSpine(down.angles, clip.U(15, 45) * kDeg);
@@ -241,10 +260,14 @@ std::vector<Frame> Jump(const Clip& clip) {
   takeoff.angles[kLeftShoulder] = {clip.U(60, 130) * kDeg, -20 * kDeg, 0};
   takeoff.angles[kRightShoulder] = takeoff.angles[kLeftShoulder];
   Frame air = takeoff;
-  SetBoth(air.angles, kLeftHip, kRightHip, {clip.U(10, 70) * kDeg, clip.U(0, 25) * kDeg, 0});
+  SetBoth(air.angles,
+          kLeftHip,
+          kRightHip,
+          {clip.U(10, 70) * kDeg, clip.U(0, 25) * kDeg, 0});
   SetBoth(air.angles, kLeftKnee, kRightKnee, {clip.U(20, 100) * kDeg, 0, 0});
   Keyframes keys;
-  const Eigen::Vector2d forward = (stand.root * Eigen::Vector3d(0, -1, 0)).head<2>();
+  const Eigen::Vector2d forward =
+      (stand.root * Eigen::Vector3d(0, -1, 0)).head<2>();
   keys.Add(0.0, stand);
   keys.Add(0.25, crouch);
   takeoff.xy = forward * distance * 0.1;
@@ -271,7 +294,8 @@ std::vector<Frame> Jump(const Clip& clip) {
 std::vector<Frame> Kick(const Clip& clip) {
   const double heading = clip.U(-M_PI, M_PI);
   const bool left = clip.Coin();
-  const int hip = left ? kLeftHip : kRightHip, knee = left ? kLeftKnee : kRightKnee;
+  const int hip = left ? kLeftHip : kRightHip,
+            knee = left ? kLeftKnee : kRightKnee;
   const int arm = left ? kRightShoulder : kLeftShoulder;
   Frame stand = Standing(clip, heading);
   Frame chamber = stand;
@@ -301,14 +325,17 @@ std::vector<Frame> Throw(const Clip& clip) {
   const double side = right ? 1.0 : -1.0;
   Frame stand = Standing(clip, heading);
   Frame windup = stand;
-  windup.angles[shoulder] = {-30 * kDeg, clip.U(0, 30) * kDeg, -clip.U(60, 90) * kDeg};
+  windup.angles[shoulder] = {
+      -30 * kDeg, clip.U(0, 30) * kDeg, -clip.U(60, 90) * kDeg};
   windup.angles[elbow].flexion = clip.U(70, 110) * kDeg;
   SetSpine(windup.angles, -10 * kDeg, 0, side * clip.U(20, 40) * kDeg);
   SetBoth(windup.angles, kLeftKnee, kRightKnee, {20 * kDeg, 0, 0});
   Frame release = stand;
-  release.angles[shoulder] = {clip.U(90, 140) * kDeg, clip.U(-10, 30) * kDeg, 20 * kDeg};
+  release.angles[shoulder] = {
+      clip.U(90, 140) * kDeg, clip.U(-10, 30) * kDeg, 20 * kDeg};
   release.angles[elbow].flexion = clip.U(0, 20) * kDeg;
-  SetSpine(release.angles, clip.U(20, 40) * kDeg, 0, -side * clip.U(20, 40) * kDeg);
+  SetSpine(
+      release.angles, clip.U(20, 40) * kDeg, 0, -side * clip.U(20, 40) * kDeg);
   release.angles[right ? kLeftHip : kRightHip].flexion = 30 * kDeg;
   release.angles[right ? kLeftKnee : kRightKnee].flexion = 30 * kDeg;
   Keyframes keys;
@@ -332,18 +359,27 @@ std::vector<Frame> Reach(const Clip& clip) {
       if (!both && s == 1) break;
       const bool left = both ? s == 0 : clip.Coin();
       f.angles[left ? kLeftShoulder : kRightShoulder] = {
-          clip.U(-30, 130) * kDeg, clip.U(-90, 90) * kDeg, clip.U(-40, 40) * kDeg};
+          clip.U(-30, 130) * kDeg,
+          clip.U(-90, 90) * kDeg,
+          clip.U(-40, 40) * kDeg};
       f.angles[left ? kLeftElbow : kRightElbow].flexion = clip.U(0, 60) * kDeg;
     }
     const double low = clip.U(0, 1);
     if (low > 0.6) {  // reach down: bend and squat
-      SetSpine(f.angles, clip.U(30, 80) * kDeg, clip.U(-20, 20) * kDeg, clip.U(-30, 30) * kDeg);
+      SetSpine(f.angles,
+               clip.U(30, 80) * kDeg,
+               clip.U(-20, 20) * kDeg,
+               clip.U(-30, 30) * kDeg);
       SetBoth(f.angles, kLeftHip, kRightHip, {clip.U(20, 80) * kDeg, 0, 0});
       SetBoth(f.angles, kLeftKnee, kRightKnee, {clip.U(0, 90) * kDeg, 0, 0});
     } else {
-      SetSpine(f.angles, clip.U(-15, 20) * kDeg, clip.U(-25, 25) * kDeg, clip.U(-30, 30) * kDeg);
+      SetSpine(f.angles,
+               clip.U(-15, 20) * kDeg,
+               clip.U(-25, 25) * kDeg,
+               clip.U(-30, 30) * kDeg);
       if (low < 0.2) {  // on tiptoes
-        SetBoth(f.angles, kLeftAnkle, kRightAnkle, {clip.U(20, 45) * kDeg, 0, 0});
+        SetBoth(
+            f.angles, kLeftAnkle, kRightAnkle, {clip.U(20, 45) * kDeg, 0, 0});
       }
     }
     const double t0 = (r + 0.5) / (reaches + 0.5);
@@ -358,14 +394,21 @@ std::vector<Frame> Sit(const Clip& clip) {
   const double heading = clip.U(-M_PI, M_PI);
   Frame stand = Standing(clip, heading);
   Frame seated = stand;
-  SetBoth(seated.angles, kLeftHip, kRightHip, {clip.U(80, 100) * kDeg, clip.U(0, 20) * kDeg, 0});
+  SetBoth(seated.angles,
+          kLeftHip,
+          kRightHip,
+          {clip.U(80, 100) * kDeg, clip.U(0, 20) * kDeg, 0});
   SetBoth(seated.angles, kLeftKnee, kRightKnee, {clip.U(70, 110) * kDeg, 0, 0});
   SetSpine(seated.angles, clip.U(-10, 20) * kDeg);
   seated.angles[kLeftShoulder] = {clip.U(20, 60) * kDeg, -70 * kDeg, 0};
   seated.angles[kRightShoulder] = {clip.U(20, 60) * kDeg, -70 * kDeg, 0};
-  SetBoth(seated.angles, kLeftElbow, kRightElbow, {clip.U(30, 90) * kDeg, 0, 0});
+  SetBoth(
+      seated.angles, kLeftElbow, kRightElbow, {clip.U(30, 90) * kDeg, 0, 0});
   Frame leaning = seated;
-  SetSpine(leaning.angles, clip.U(-20, 40) * kDeg, clip.U(-15, 15) * kDeg, clip.U(-30, 30) * kDeg);
+  SetSpine(leaning.angles,
+           clip.U(-20, 40) * kDeg,
+           clip.U(-15, 15) * kDeg,
+           clip.U(-30, 30) * kDeg);
   if (clip.Coin()) {  // cross the legs
     leaning.angles[kLeftHip] = {100 * kDeg, -20 * kDeg, 20 * kDeg};
     leaning.angles[kLeftKnee].flexion = 60 * kDeg;
@@ -419,7 +462,8 @@ std::vector<Frame> LieDown(const Clip& clip) {
   SetSpine(kneel.angles, 30 * kDeg);
   Frame floor_sit = stand;
   SetBoth(floor_sit.angles, kLeftHip, kRightHip, {90 * kDeg, 10 * kDeg, 0});
-  SetBoth(floor_sit.angles, kLeftKnee, kRightKnee, {clip.U(0, 60) * kDeg, 0, 0});
+  SetBoth(
+      floor_sit.angles, kLeftKnee, kRightKnee, {clip.U(0, 60) * kDeg, 0, 0});
   // Lying: supine, prone or on a side, the body axis horizontal.
   const int style = static_cast<int>(clip.U(0, 3));
   Frame lying = stand;
@@ -430,12 +474,15 @@ std::vector<Frame> LieDown(const Clip& clip) {
     lying.root = yaw * AxisRotation(M_PI / 2, Eigen::Vector3d::UnitX());
   } else {  // on a side
     lying.root = yaw * AxisRotation(M_PI / 2, Eigen::Vector3d::UnitY()) *
-                 AxisRotation(clip.Coin() ? M_PI / 2 : -M_PI / 2, Eigen::Vector3d::UnitZ());
+                 AxisRotation(clip.Coin() ? M_PI / 2 : -M_PI / 2,
+                              Eigen::Vector3d::UnitZ());
     SetBoth(lying.angles, kLeftHip, kRightHip, {clip.U(0, 60) * kDeg, 0, 0});
     SetBoth(lying.angles, kLeftKnee, kRightKnee, {clip.U(0, 90) * kDeg, 0, 0});
   }
-  lying.angles[kLeftShoulder] = {clip.U(-20, 120) * kDeg, clip.U(-90, 60) * kDeg, 0};
-  lying.angles[kRightShoulder] = {clip.U(-20, 120) * kDeg, clip.U(-90, 60) * kDeg, 0};
+  lying.angles[kLeftShoulder] = {
+      clip.U(-20, 120) * kDeg, clip.U(-90, 60) * kDeg, 0};
+  lying.angles[kRightShoulder] = {
+      clip.U(-20, 120) * kDeg, clip.U(-90, 60) * kDeg, 0};
   Frame lying2 = lying;
   lying2.angles[kLeftHip].flexion = clip.U(0, 90) * kDeg;
   lying2.angles[kLeftKnee].flexion = clip.U(0, 120) * kDeg;
@@ -456,7 +503,8 @@ std::vector<Frame> Crawl(const Clip& clip) {
   const double speed = clip.U(0.2, 0.6);
   const double amp = clip.U(10, 25) * kDeg;
   const Eigen::Quaterniond root =
-      Yaw(heading) * AxisRotation(M_PI / 2 + clip.U(-10, 10) * kDeg, Eigen::Vector3d::UnitX());
+      Yaw(heading) *
+      AxisRotation(M_PI / 2 + clip.U(-10, 10) * kDeg, Eigen::Vector3d::UnitX());
   std::vector<Frame> frames(clip.num_frames);
   for (int i = 0; i < clip.num_frames; ++i) {
     const double phase = kTwoPi * freq * clip.Time(i);
@@ -487,7 +535,8 @@ std::vector<Frame> Handstand(const Clip& clip) {
   Frame arms_up = stand;
   SetBoth(arms_up.angles, kLeftShoulder, kRightShoulder, {0, 85 * kDeg, 0});
   Frame inverted = arms_up;
-  inverted.root = Yaw(heading) * AxisRotation(M_PI + clip.U(-15, 15) * kDeg, Eigen::Vector3d::UnitX());
+  inverted.root = Yaw(heading) * AxisRotation(M_PI + clip.U(-15, 15) * kDeg,
+                                              Eigen::Vector3d::UnitX());
   const double split = clip.U(0, 1);
   if (split < 0.4) {
     SetBoth(inverted.angles, kLeftHip, kRightHip, {0, clip.U(0, 40) * kDeg, 0});
@@ -495,7 +544,8 @@ std::vector<Frame> Handstand(const Clip& clip) {
     inverted.angles[kLeftHip].flexion = clip.U(30, 90) * kDeg;
     inverted.angles[kRightHip].flexion = -clip.U(10, 30) * kDeg;
   } else {
-    SetBoth(inverted.angles, kLeftKnee, kRightKnee, {clip.U(30, 120) * kDeg, 0, 0});
+    SetBoth(
+        inverted.angles, kLeftKnee, kRightKnee, {clip.U(30, 120) * kDeg, 0, 0});
   }
   SetSpine(inverted.angles, -clip.U(0, 25) * kDeg);
   Frame hold = inverted;
@@ -516,14 +566,19 @@ std::vector<Frame> Cartwheel(const Clip& clip) {
   const double distance = clip.U(1.0, 2.0);
   std::vector<Frame> frames(clip.num_frames);
   for (int i = 0; i < clip.num_frames; ++i) {
-    const double w = Smoothstep(i / double(std::max(1, clip.num_frames - 1)) * 1.2 - 0.1);
+    const double w =
+        Smoothstep(i / double(std::max(1, clip.num_frames - 1)) * 1.2 - 0.1);
     Frame& f = frames[i];
     // Rotation in the frontal plane: about the body's forward axis (Y).
-    f.root = Yaw(heading) * AxisRotation(direction * kTwoPi * w, Eigen::Vector3d::UnitY());
-    SetBoth(f.angles, kLeftShoulder, kRightShoulder, {0, clip.U(70, 90) * kDeg, 0});
+    f.root = Yaw(heading) *
+             AxisRotation(direction * kTwoPi * w, Eigen::Vector3d::UnitY());
+    SetBoth(
+        f.angles, kLeftShoulder, kRightShoulder, {0, clip.U(70, 90) * kDeg, 0});
     SetBoth(f.angles, kLeftElbow, kRightElbow, {0, 0, 0});
-    SetBoth(f.angles, kLeftHip, kRightHip, {0, 40 * kDeg * std::sin(M_PI * w), 0});
-    const Eigen::Vector3d side = Yaw(heading) * Eigen::Vector3d(-direction, 0, 0);
+    SetBoth(
+        f.angles, kLeftHip, kRightHip, {0, 40 * kDeg * std::sin(M_PI * w), 0});
+    const Eigen::Vector3d side =
+        Yaw(heading) * Eigen::Vector3d(-direction, 0, 0);
     f.xy = side.head<2>() * distance * w;
   }
   return frames;
@@ -539,14 +594,20 @@ std::vector<Frame> Flip(const Clip& clip) {
     const double t = i / double(std::max(1, clip.num_frames - 1));
     const double s = std::clamp((t - 0.3) / 0.4, 0.0, 1.0);  // flight phase
     Frame& f = frames[i];
-    f.root = Yaw(heading) *
-             AxisRotation((back ? -1 : 1) * kTwoPi * Smoothstep(s), Eigen::Vector3d::UnitX());
-    const double tuck_amount = tuck ? std::sin(M_PI * s) : 0.3 * std::sin(M_PI * s);
+    f.root =
+        Yaw(heading) * AxisRotation((back ? -1 : 1) * kTwoPi * Smoothstep(s),
+                                    Eigen::Vector3d::UnitX());
+    const double tuck_amount =
+        tuck ? std::sin(M_PI * s) : 0.3 * std::sin(M_PI * s);
     SetBoth(f.angles, kLeftHip, kRightHip, {120 * kDeg * tuck_amount, 0, 0});
     SetBoth(f.angles, kLeftKnee, kRightKnee, {130 * kDeg * tuck_amount, 0, 0});
-    SetBoth(f.angles, kLeftShoulder, kRightShoulder,
-            {60 * kDeg * tuck_amount, (-80 + 150 * std::sin(M_PI * std::min(1.0, t / 0.3))) * kDeg * (1 - s) +
-                                          -20 * kDeg * s,
+    SetBoth(f.angles,
+            kLeftShoulder,
+            kRightShoulder,
+            {60 * kDeg * tuck_amount,
+             (-80 + 150 * std::sin(M_PI * std::min(1.0, t / 0.3))) * kDeg *
+                     (1 - s) +
+                 -20 * kDeg * s,
              0});
     SetSpine(f.angles, 40 * kDeg * tuck_amount);
     f.lift = (s > 0 && s < 1) ? 4 * height * s * (1 - s) : 0.0;
@@ -557,7 +618,10 @@ std::vector<Frame> Flip(const Clip& clip) {
 std::vector<Frame> MartialArts(const Clip& clip) {
   const double heading = clip.U(-M_PI, M_PI);
   Frame stance = Standing(clip, heading);
-  SetBoth(stance.angles, kLeftHip, kRightHip, {clip.U(10, 30) * kDeg, clip.U(10, 25) * kDeg, 0});
+  SetBoth(stance.angles,
+          kLeftHip,
+          kRightHip,
+          {clip.U(10, 30) * kDeg, clip.U(10, 25) * kDeg, 0});
   SetBoth(stance.angles, kLeftKnee, kRightKnee, {clip.U(20, 50) * kDeg, 0, 0});
   stance.angles[kLeftShoulder] = {70 * kDeg, -40 * kDeg, 0};
   stance.angles[kRightShoulder] = {70 * kDeg, -40 * kDeg, 0};
@@ -570,18 +634,24 @@ std::vector<Frame> MartialArts(const Clip& clip) {
     const double kind = clip.U(0, 1);
     const bool left = clip.Coin();
     if (kind < 0.4) {  // punch
-      f.angles[left ? kLeftShoulder : kRightShoulder] = {clip.U(80, 100) * kDeg, clip.U(-20, 10) * kDeg, 0};
+      f.angles[left ? kLeftShoulder : kRightShoulder] = {
+          clip.U(80, 100) * kDeg, clip.U(-20, 10) * kDeg, 0};
       f.angles[left ? kLeftElbow : kRightElbow].flexion = clip.U(0, 15) * kDeg;
       SetSpine(f.angles, 5 * kDeg, 0, (left ? -1 : 1) * clip.U(15, 35) * kDeg);
     } else if (kind < 0.7) {  // front or side kick, high
-      f.angles[left ? kLeftHip : kRightHip] = {clip.U(70, 120) * kDeg, clip.U(0, 60) * kDeg, 0};
+      f.angles[left ? kLeftHip : kRightHip] = {
+          clip.U(70, 120) * kDeg, clip.U(0, 60) * kDeg, 0};
       f.angles[left ? kLeftKnee : kRightKnee].flexion = clip.U(0, 30) * kDeg;
-      SetSpine(f.angles, -clip.U(10, 30) * kDeg, (left ? -1 : 1) * clip.U(0, 30) * kDeg);
+      SetSpine(f.angles,
+               -clip.U(10, 30) * kDeg,
+               (left ? -1 : 1) * clip.U(0, 30) * kDeg);
     } else {  // roundhouse: leg abducted and turned
-      f.angles[left ? kLeftHip : kRightHip] = {clip.U(40, 80) * kDeg, clip.U(50, 80) * kDeg,
-                                               clip.U(-40, 0) * kDeg};
+      f.angles[left ? kLeftHip : kRightHip] = {
+          clip.U(40, 80) * kDeg, clip.U(50, 80) * kDeg, clip.U(-40, 0) * kDeg};
       f.angles[left ? kLeftKnee : kRightKnee].flexion = clip.U(10, 60) * kDeg;
-      SetSpine(f.angles, -10 * kDeg, (left ? -1 : 1) * clip.U(20, 35) * kDeg,
+      SetSpine(f.angles,
+               -10 * kDeg,
+               (left ? -1 : 1) * clip.U(20, 35) * kDeg,
                (left ? 1 : -1) * clip.U(20, 40) * kDeg);
     }
     const double t0 = (m + 0.6) / (moves + 0.5);
@@ -604,7 +674,8 @@ std::vector<Frame> RandomPose(const Clip& clip) {
     for (int j = 1; j < kNumCoreJoints; ++j) {
       const JointLimits& lim = CoreJointLimits(j);
       auto draw = [&](const std::array<double, 2>& r) {
-        const double mid = 0.5 * (r[0] + r[1]), half = 0.5 * (r[1] - r[0]) * range;
+        const double mid = 0.5 * (r[0] + r[1]),
+                     half = 0.5 * (r[1] - r[0]) * range;
         return clip.U(mid - half, mid + half);
       };
       f.angles[j] = {draw(lim.flexion), draw(lim.abduction), draw(lim.twist)};
@@ -620,14 +691,22 @@ using Generator = std::function<std::vector<Frame>(const Clip&)>;
 
 const std::vector<std::pair<std::string, Generator>>& Generators() {
   static const std::vector<std::pair<std::string, Generator>> kGenerators = {
-      {"walk", Walk},         {"run", Run},
-      {"jump", Jump},         {"squat", Squat},
-      {"kick", Kick},         {"throw", Throw},
-      {"reach", Reach},       {"turn", Turn},
-      {"sit", Sit},           {"lie_down", LieDown},
-      {"crawl", Crawl},       {"kneel", Kneel},
-      {"cartwheel", Cartwheel}, {"handstand", Handstand},
-      {"flip", Flip},         {"martial_arts", MartialArts},
+      {"walk", Walk},
+      {"run", Run},
+      {"jump", Jump},
+      {"squat", Squat},
+      {"kick", Kick},
+      {"throw", Throw},
+      {"reach", Reach},
+      {"turn", Turn},
+      {"sit", Sit},
+      {"lie_down", LieDown},
+      {"crawl", Crawl},
+      {"kneel", Kneel},
+      {"cartwheel", Cartwheel},
+      {"handstand", Handstand},
+      {"flip", Flip},
+      {"martial_arts", MartialArts},
       {"random_pose", RandomPose},
   };
   return kGenerators;
@@ -674,14 +753,17 @@ const std::vector<std::string>& ProceduralMotionTypes() {
   return kTypes;
 }
 
-void ApplyGroundContact(const BodyModel& body, const Eigen::Matrix3Xd& rest_joints,
-                        BodyPose& pose, double lift) {
+void ApplyGroundContact(const BodyModel& body,
+                        const Eigen::Matrix3Xd& rest_joints,
+                        BodyPose& pose,
+                        double lift) {
   pose.translation.z() = 0.0;
   const PosedSkeleton skeleton = PoseSkeleton(body, rest_joints, pose);
   double lowest = std::numeric_limits<double>::infinity();
   const int joints = std::min<int>(body.num_joints(), kNumCoreJoints);
   for (int j = 0; j < joints; ++j) {
-    lowest = std::min(lowest, skeleton.global[j].translation().z() - JointRadius(j));
+    lowest =
+        std::min(lowest, skeleton.global[j].translation().z() - JointRadius(j));
   }
   pose.translation.z() = lift - lowest;
 }
@@ -691,16 +773,23 @@ PoseSequence GenerateProceduralMotion(const std::string& type,
                                       const ProceduralMotionOptions& options,
                                       Rng& rng) {
   const auto& generators = Generators();
-  auto it = std::find_if(generators.begin(), generators.end(),
+  auto it = std::find_if(generators.begin(),
+                         generators.end(),
                          [&](const auto& g) { return g.first == type; });
   if (it == generators.end()) {
-    throw ConfigError(fmt::format("Unknown procedural motion '{}'. Known motions: {}",
-                                  type, fmt::join(ProceduralMotionTypes(), ", ")));
+    throw ConfigError(
+        fmt::format("Unknown procedural motion '{}'. Known motions: {}",
+                    type,
+                    fmt::join(ProceduralMotionTypes(), ", ")));
   }
   SOMA_CHECK_GT(options.frame_rate, 0.0);
   SOMA_CHECK_GT(options.duration_s, 0.0);
-  Clip clip{std::max(1, static_cast<int>(std::lround(options.duration_s * options.frame_rate))),
-            options.frame_rate, &rng, &options};
+  Clip clip{std::max(1,
+                     static_cast<int>(
+                         std::lround(options.duration_s * options.frame_rate))),
+            options.frame_rate,
+            &rng,
+            &options};
   std::vector<Frame> frames = it->second(clip);
 
   // Per-clip random offsets of every angle (individual style), then clamp to
@@ -708,7 +797,8 @@ PoseSequence GenerateProceduralMotion(const std::string& type,
   AnatomicalPose jitter{};
   const double jitter_rad = options.joint_jitter_deg * kDeg;
   for (int j = 1; j < kNumCoreJoints; ++j) {
-    jitter[j] = {rng.Normal(0, jitter_rad), rng.Normal(0, jitter_rad),
+    jitter[j] = {rng.Normal(0, jitter_rad),
+                 rng.Normal(0, jitter_rad),
                  rng.Normal(0, jitter_rad)};
   }
   const Eigen::Matrix3Xd rest_joints = body.RestJoints(body.template_vertices);
@@ -721,13 +811,19 @@ PoseSequence GenerateProceduralMotion(const std::string& type,
     for (int j = 1; j < kNumCoreJoints; ++j) {
       const JointLimits& lim = CoreJointLimits(j);
       JointAngles& a = f.angles[j];
-      a.flexion = std::clamp(a.flexion + jitter[j].flexion, lim.flexion[0], lim.flexion[1]);
-      a.abduction = std::clamp(a.abduction + jitter[j].abduction, lim.abduction[0], lim.abduction[1]);
-      a.twist = std::clamp(a.twist + jitter[j].twist, lim.twist[0], lim.twist[1]);
+      a.flexion = std::clamp(
+          a.flexion + jitter[j].flexion, lim.flexion[0], lim.flexion[1]);
+      a.abduction = std::clamp(a.abduction + jitter[j].abduction,
+                               lim.abduction[0],
+                               lim.abduction[1]);
+      a.twist =
+          std::clamp(a.twist + jitter[j].twist, lim.twist[0], lim.twist[1]);
     }
     const Eigen::AngleAxisd root(f.root);
-    BodyPose pose = ToBodyPose(f.angles, root.axis() * root.angle(),
-                               Eigen::Vector3d(f.xy.x(), f.xy.y(), 0.0), body.num_joints());
+    BodyPose pose = ToBodyPose(f.angles,
+                               root.axis() * root.angle(),
+                               Eigen::Vector3d(f.xy.x(), f.xy.y(), 0.0),
+                               body.num_joints());
     ApplyGroundContact(body, rest_joints, pose, f.lift);
     sequence.frames.push_back(std::move(pose));
   }

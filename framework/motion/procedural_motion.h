@@ -13,12 +13,12 @@
 // the posed skeleton.
 #pragma once
 
-#include <string>
-#include <vector>
-
 #include "framework/body/body_model.h"
 #include "framework/core/random.h"
 #include "framework/motion/pose_sequence.h"
+
+#include <string>
+#include <vector>
 
 namespace soma {
 
@@ -28,8 +28,8 @@ namespace soma {
 const std::vector<std::string>& ProceduralMotionTypes();
 
 struct ProceduralMotionOptions {
-  double frame_rate = 30.0;   // Hz
-  double duration_s = 4.0;    // clip length (seconds)
+  double frame_rate = 30.0;       // Hz
+  double duration_s = 4.0;        // clip length (seconds)
   double joint_jitter_deg = 5.0;  // per-clip random offset of every angle
   /// Scale of random_pose angles within the joint limits (1 = full range).
   double random_pose_range = 0.9;
@@ -46,7 +46,9 @@ PoseSequence GenerateProceduralMotion(const std::string& type,
 /// Puts the lowest point of the posed body on z = `lift` by changing the
 /// root translation's z. The lowest point is estimated from the posed
 /// joints minus per-joint surface radii (pelvis 0.10 m ... hands 0.03 m).
-void ApplyGroundContact(const BodyModel& body, const Eigen::Matrix3Xd& rest_joints,
-                        BodyPose& pose, double lift = 0.0);
+void ApplyGroundContact(const BodyModel& body,
+                        const Eigen::Matrix3Xd& rest_joints,
+                        BodyPose& pose,
+                        double lift = 0.0);
 
 }  // namespace soma

@@ -1,13 +1,13 @@
 #include "framework/motion/retarget.h"
 
-#include <algorithm>
-#include <cmath>
+#include "framework/core/error.h"
+#include "framework/motion/procedural_motion.h"
 
 #include <Eigen/Geometry>
 #include <fmt/format.h>
 
-#include "framework/core/error.h"
-#include "framework/motion/procedural_motion.h"
+#include <algorithm>
+#include <cmath>
 
 namespace soma {
 namespace {
@@ -16,30 +16,50 @@ namespace {
 /// which keeps its parent's correction).
 int CoreChild(int joint) {
   switch (joint) {
-    case kLeftHip: return kLeftKnee;
-    case kRightHip: return kRightKnee;
-    case kLeftKnee: return kLeftAnkle;
-    case kRightKnee: return kRightAnkle;
-    case kLeftAnkle: return kLeftFoot;
-    case kRightAnkle: return kRightFoot;
-    case kSpine1: return kSpine2;
-    case kSpine2: return kSpine3;
-    case kSpine3: return kNeck;
-    case kNeck: return kHead;
-    case kLeftCollar: return kLeftShoulder;
-    case kRightCollar: return kRightShoulder;
-    case kLeftShoulder: return kLeftElbow;
-    case kRightShoulder: return kRightElbow;
-    case kLeftElbow: return kLeftWrist;
-    case kRightElbow: return kRightWrist;
-    case kLeftWrist: return kLeftHand;
-    case kRightWrist: return kRightHand;
-    default: return -1;
+    case kLeftHip:
+      return kLeftKnee;
+    case kRightHip:
+      return kRightKnee;
+    case kLeftKnee:
+      return kLeftAnkle;
+    case kRightKnee:
+      return kRightAnkle;
+    case kLeftAnkle:
+      return kLeftFoot;
+    case kRightAnkle:
+      return kRightFoot;
+    case kSpine1:
+      return kSpine2;
+    case kSpine2:
+      return kSpine3;
+    case kSpine3:
+      return kNeck;
+    case kNeck:
+      return kHead;
+    case kLeftCollar:
+      return kLeftShoulder;
+    case kRightCollar:
+      return kRightShoulder;
+    case kLeftShoulder:
+      return kLeftElbow;
+    case kRightShoulder:
+      return kRightElbow;
+    case kLeftElbow:
+      return kLeftWrist;
+    case kRightElbow:
+      return kRightWrist;
+    case kLeftWrist:
+      return kLeftHand;
+    case kRightWrist:
+      return kRightHand;
+    default:
+      return -1;
   }
 }
 
 /// Orthonormal frame from a left-pointing hip axis and an up vector.
-Eigen::Matrix3d HipFrame(const Eigen::Vector3d& left, const Eigen::Vector3d& up) {
+Eigen::Matrix3d HipFrame(const Eigen::Vector3d& left,
+                         const Eigen::Vector3d& up) {
   const Eigen::Vector3d x = left.normalized();
   const Eigen::Vector3d z = (up - up.dot(x) * x).normalized();
   Eigen::Matrix3d frame;
@@ -112,70 +132,83 @@ const RetargetMap& CmuCgspeedBvhRetargetMap() {
 }
 
 const RetargetMap& AsfRetargetMap() {
-  static const RetargetMap kMap = {
-      "asf",
-      {{kPelvis, "root", ""},
-       {kLeftHip, "lfemur", "ltibia"},
-       {kRightHip, "rfemur", "rtibia"},
-       {kLeftKnee, "ltibia", "lfoot"},
-       {kRightKnee, "rtibia", "rfoot"},
-       {kLeftAnkle, "lfoot", "ltoes"},
-       {kRightAnkle, "rfoot", "rtoes"},
-       {kLeftFoot, "ltoes", ""},
-       {kRightFoot, "rtoes", ""},
-       {kSpine1, "lowerback", "upperback"},
-       {kSpine2, "upperback", "thorax"},
-       {kSpine3, "thorax", "lowerneck"},
-       {kNeck, "lowerneck", "upperneck"},
-       {kHead, "head", ""},
-       {kLeftCollar, "lclavicle", "lhumerus"},
-       {kRightCollar, "rclavicle", "rhumerus"},
-       {kLeftShoulder, "lhumerus", "lradius"},
-       {kRightShoulder, "rhumerus", "rradius"},
-       {kLeftElbow, "lradius", "lwrist"},
-       {kRightElbow, "rradius", "rwrist"},
-       {kLeftWrist, "lwrist", "lhand"},
-       {kRightWrist, "rwrist", "rhand"},
-       {kLeftHand, "lhand", ""},
-       {kRightHand, "rhand", ""}}};
+  static const RetargetMap kMap = {"asf",
+                                   {{kPelvis, "root", ""},
+                                    {kLeftHip, "lfemur", "ltibia"},
+                                    {kRightHip, "rfemur", "rtibia"},
+                                    {kLeftKnee, "ltibia", "lfoot"},
+                                    {kRightKnee, "rtibia", "rfoot"},
+                                    {kLeftAnkle, "lfoot", "ltoes"},
+                                    {kRightAnkle, "rfoot", "rtoes"},
+                                    {kLeftFoot, "ltoes", ""},
+                                    {kRightFoot, "rtoes", ""},
+                                    {kSpine1, "lowerback", "upperback"},
+                                    {kSpine2, "upperback", "thorax"},
+                                    {kSpine3, "thorax", "lowerneck"},
+                                    {kNeck, "lowerneck", "upperneck"},
+                                    {kHead, "head", ""},
+                                    {kLeftCollar, "lclavicle", "lhumerus"},
+                                    {kRightCollar, "rclavicle", "rhumerus"},
+                                    {kLeftShoulder, "lhumerus", "lradius"},
+                                    {kRightShoulder, "rhumerus", "rradius"},
+                                    {kLeftElbow, "lradius", "lwrist"},
+                                    {kRightElbow, "rradius", "rwrist"},
+                                    {kLeftWrist, "lwrist", "lhand"},
+                                    {kRightWrist, "rwrist", "rhand"},
+                                    {kLeftHand, "lhand", ""},
+                                    {kRightHand, "rhand", ""}}};
   return kMap;
 }
 
-const RetargetMap& DetectRetargetMap(const Skeleton& skeleton, const std::string& source) {
+const RetargetMap& DetectRetargetMap(const Skeleton& skeleton,
+                                     const std::string& source) {
   for (const RetargetMap* map :
        {&CmuBvhRetargetMap(), &CmuCgspeedBvhRetargetMap(), &AsfRetargetMap()}) {
-    const bool fits = std::all_of(map->entries.begin(), map->entries.end(),
+    const bool fits = std::all_of(map->entries.begin(),
+                                  map->entries.end(),
                                   [&](const RetargetMap::Entry& e) {
                                     return skeleton.Find(e.source_joint) >= 0;
                                   });
     if (fits) return *map;
   }
-  throw IoError(fmt::format(
-      "{}: the skeleton matches no retargeting map (CMU BVH names Hips/LeftHip/..., "
-      "Hips/LeftUpLeg/... or ASF names root/lfemur/...)",
-      source));
+  throw IoError(
+      fmt::format("{}: the skeleton matches no retargeting map (CMU BVH names "
+                  "Hips/LeftHip/..., "
+                  "Hips/LeftUpLeg/... or ASF names root/lfemur/...)",
+                  source));
 }
 
-PoseSequence Retarget(const MotionClip& clip, const BodyModel& body, const RetargetMap& map) {
+PoseSequence Retarget(const MotionClip& clip,
+                      const BodyModel& body,
+                      const RetargetMap& map) {
   SOMA_CHECK_GE(body.num_joints(), static_cast<int>(kNumCoreJoints));
   const Skeleton& skeleton = clip.skeleton;
-  const std::string source = clip.source_path.empty() ? clip.name : clip.source_path;
+  const std::string source =
+      clip.source_path.empty() ? clip.name : clip.source_path;
   if (clip.up_axis != UpAxis::kZ) {
-    throw IoError(fmt::format("{}: retargeting needs a Z-up clip (ConvertYUpToZUp)", source));
+    throw IoError(fmt::format(
+        "{}: retargeting needs a Z-up clip (ConvertYUpToZUp)", source));
   }
-  std::vector<int> source_of(kNumCoreJoints, -1), source_child_of(kNumCoreJoints, -1);
+  std::vector<int> source_of(kNumCoreJoints, -1),
+      source_child_of(kNumCoreJoints, -1);
   for (const RetargetMap::Entry& e : map.entries) {
     const int s = skeleton.Find(e.source_joint);
     if (s < 0) {
-      throw IoError(fmt::format("{}: joint '{}' of retargeting map '{}' is missing", source,
-                                e.source_joint, map.name));
+      throw IoError(
+          fmt::format("{}: joint '{}' of retargeting map '{}' is missing",
+                      source,
+                      e.source_joint,
+                      map.name));
     }
     source_of[e.core_joint] = s;
     if (!e.source_child.empty()) {
       source_child_of[e.core_joint] = skeleton.Find(e.source_child);
       if (source_child_of[e.core_joint] < 0) {
-        throw IoError(fmt::format("{}: joint '{}' of retargeting map '{}' is missing", source,
-                                  e.source_child, map.name));
+        throw IoError(
+            fmt::format("{}: joint '{}' of retargeting map '{}' is missing",
+                        source,
+                        e.source_child,
+                        map.name));
       }
     }
   }
@@ -183,14 +216,19 @@ PoseSequence Retarget(const MotionClip& clip, const BodyModel& body, const Retar
   const Eigen::Matrix3Xd body_rest = body.RestJoints(body.template_vertices);
 
   // Rest corrections C_j (body rest bone -> source rest bone).
-  std::vector<Eigen::Matrix3d> correction(kNumCoreJoints, Eigen::Matrix3d::Identity());
+  std::vector<Eigen::Matrix3d> correction(kNumCoreJoints,
+                                          Eigen::Matrix3d::Identity());
   {
     const Eigen::Vector3d src_left =
         source_rest[source_of[kLeftHip]] - source_rest[source_of[kRightHip]];
-    const Eigen::Vector3d src_up = source_rest[source_of[kNeck]] - source_rest[source_of[kPelvis]];
-    const Eigen::Vector3d body_left = body_rest.col(kLeftHip) - body_rest.col(kRightHip);
-    const Eigen::Vector3d body_up = body_rest.col(kNeck) - body_rest.col(kPelvis);
-    correction[kPelvis] = HipFrame(src_left, src_up) * HipFrame(body_left, body_up).transpose();
+    const Eigen::Vector3d src_up =
+        source_rest[source_of[kNeck]] - source_rest[source_of[kPelvis]];
+    const Eigen::Vector3d body_left =
+        body_rest.col(kLeftHip) - body_rest.col(kRightHip);
+    const Eigen::Vector3d body_up =
+        body_rest.col(kNeck) - body_rest.col(kPelvis);
+    correction[kPelvis] =
+        HipFrame(src_left, src_up) * HipFrame(body_left, body_up).transpose();
   }
   for (int j = 1; j < kNumCoreJoints; ++j) {
     const int child = CoreChild(j);
@@ -199,23 +237,27 @@ PoseSequence Retarget(const MotionClip& clip, const BodyModel& body, const Retar
       continue;
     }
     const Eigen::Vector3d body_dir = body_rest.col(child) - body_rest.col(j);
-    const Eigen::Vector3d src_dir = source_rest[source_child_of[j]] - source_rest[source_of[j]];
+    const Eigen::Vector3d src_dir =
+        source_rest[source_child_of[j]] - source_rest[source_of[j]];
     if (body_dir.norm() < 1e-9 || src_dir.norm() < 1e-9) {
       correction[j] = correction[body.parents[j]];
       continue;
     }
-    correction[j] = Eigen::Quaterniond::FromTwoVectors(body_dir, src_dir).toRotationMatrix();
+    correction[j] = Eigen::Quaterniond::FromTwoVectors(body_dir, src_dir)
+                        .toRotationMatrix();
   }
 
   // Root trajectory scale: hip height ratio.
-  const double src_hip_height = 0.5 * (source_rest[source_of[kLeftHip]].z() +
-                                       source_rest[source_of[kRightHip]].z()) -
-                                std::min(source_rest[source_of[kLeftFoot]].z(),
-                                         source_rest[source_of[kRightFoot]].z());
+  const double src_hip_height =
+      0.5 * (source_rest[source_of[kLeftHip]].z() +
+             source_rest[source_of[kRightHip]].z()) -
+      std::min(source_rest[source_of[kLeftFoot]].z(),
+               source_rest[source_of[kRightFoot]].z());
   const double body_hip_height =
       0.5 * (body_rest(2, kLeftHip) + body_rest(2, kRightHip)) -
       std::min(body_rest(2, kLeftFoot), body_rest(2, kRightFoot));
-  const double scale = src_hip_height > 1e-6 ? body_hip_height / src_hip_height : 1.0;
+  const double scale =
+      src_hip_height > 1e-6 ? body_hip_height / src_hip_height : 1.0;
 
   PoseSequence sequence;
   sequence.name = clip.name;
@@ -232,7 +274,8 @@ PoseSequence Retarget(const MotionClip& clip, const BodyModel& body, const Retar
     }
     BodyPose pose = BodyPose::Rest(body.num_joints());
     for (int j = 0; j < kNumCoreJoints; ++j) {
-      const Eigen::Matrix3d local = j == 0 ? q[0] : q[body.parents[j]].transpose() * q[j];
+      const Eigen::Matrix3d local =
+          j == 0 ? q[0] : q[body.parents[j]].transpose() * q[j];
       const Eigen::AngleAxisd aa(local);
       pose.rotations.col(j) = aa.axis() * aa.angle();
     }

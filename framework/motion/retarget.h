@@ -14,12 +14,12 @@
 // that its lowest 5% of frames touch the floor.
 #pragma once
 
-#include <string>
-#include <vector>
-
 #include "framework/body/body_model.h"
 #include "framework/io/skeleton_motion.h"
 #include "framework/motion/pose_sequence.h"
+
+#include <string>
+#include <vector>
 
 namespace soma {
 
@@ -42,10 +42,13 @@ const RetargetMap& CmuCgspeedBvhRetargetMap();
 /// Acclaim ASF naming used by CMU and HDM05 (root, lfemur, ..., lhand).
 const RetargetMap& AsfRetargetMap();
 /// Picks the map whose joints the skeleton has; IoError if none fits.
-const RetargetMap& DetectRetargetMap(const Skeleton& skeleton, const std::string& source);
+const RetargetMap& DetectRetargetMap(const Skeleton& skeleton,
+                                     const std::string& source);
 
 /// Retargets a Z-up clip (ConvertYUpToZUp first) onto `body` at its mean
 /// shape. Throws IoError if a mapped joint is missing from the skeleton.
-PoseSequence Retarget(const MotionClip& clip, const BodyModel& body, const RetargetMap& map);
+PoseSequence Retarget(const MotionClip& clip,
+                      const BodyModel& body,
+                      const RetargetMap& map);
 
 }  // namespace soma

@@ -17,8 +17,8 @@ RegistryState& State() {
   return state;
 }
 
-constexpr std::string_view kReservedKeys[] = {"_target_", "_args_", "_recursive_",
-                                              "_partial_", "_convert_"};
+constexpr std::string_view kReservedKeys[] = {
+    "_target_", "_args_", "_recursive_", "_partial_", "_convert_"};
 
 }  // namespace
 
@@ -26,10 +26,11 @@ namespace internal {
 
 void ThrowIfFrozen(std::string_view kind, std::string_view key) {
   if (State().frozen) {
-    throw InternalError(fmt::format(
-        "Cannot register {} '{}': the registries are frozen after "
-        "InitFramework(); register it from a Register*() function",
-        kind, key));
+    throw InternalError(
+        fmt::format("Cannot register {} '{}': the registries are frozen after "
+                    "InitFramework(); register it from a Register*() function",
+                    kind,
+                    key));
   }
 }
 
@@ -75,13 +76,17 @@ void BuildChildren(const ConfigNode& node, BuildContext& ctx) {
       throw ConfigError(fmt::format(
           "Invalid configuration. {}._target_ = {}: no registered component "
           "has that name",
-          child.path(), target));
+          child.path(),
+          target));
     }
     if (creators.size() > 1) {
       throw ConfigError(fmt::format(
           "Invalid configuration. {}._target_ = {} is ambiguous ({} and {} "
           "both register it)",
-          child.path(), target, creators[0]->kind, creators[1]->kind));
+          child.path(),
+          target,
+          creators[0]->kind,
+          creators[1]->kind));
     }
     BuildContext grandchild_ctx = ctx;
     grandchild_ctx.ClearChildren();
@@ -90,25 +95,31 @@ void BuildChildren(const ConfigNode& node, BuildContext& ctx) {
     if (recursive == nullptr || recursive->AsBool()) {
       BuildChildren(stripped, grandchild_ctx);
     }
-    ctx.SetChild(key, creators[0]->create(stripped, grandchild_ctx),
-                 child.path());
+    ctx.SetChild(
+        key, creators[0]->create(stripped, grandchild_ctx), child.path());
   }
 }
 
-void ThrowUnknownKey(std::string_view kind, std::string_view key,
+void ThrowUnknownKey(std::string_view kind,
+                     std::string_view key,
                      std::string_view path,
                      const std::vector<std::string>& keys) {
   throw ConfigError(fmt::format(
       "Invalid configuration. {} = {}. Violated constraint: a registered {} "
       "name. Registered {} names: {}",
-      path.empty() ? "<root>" : path, key, kind, kind, fmt::join(keys, ", ")));
+      path.empty() ? "<root>" : path,
+      key,
+      kind,
+      kind,
+      fmt::join(keys, ", ")));
 }
 
 }  // namespace internal
 
-void RegisterConfigGroup(std::string group, std::string kind,
-                         std::function<void(const ConfigNode&, BuildContext&)>
-                             build) {
+void RegisterConfigGroup(
+    std::string group,
+    std::string kind,
+    std::function<void(const ConfigNode&, BuildContext&)> build) {
   internal::ThrowIfFrozen("config group", group);
   RegistryState& state = State();
   std::lock_guard<std::mutex> lock(state.mutex);

@@ -17,6 +17,12 @@
 // parent says `_recursive_: false`.
 #pragma once
 
+#include "framework/config/node.h"
+#include "framework/core/error.h"
+#include "framework/core/random.h"
+
+#include <fmt/format.h>
+
 #include <any>
 #include <functional>
 #include <map>
@@ -25,12 +31,6 @@
 #include <string_view>
 #include <typeindex>
 #include <vector>
-
-#include <fmt/format.h>
-
-#include "framework/config/node.h"
-#include "framework/core/error.h"
-#include "framework/core/random.h"
 
 namespace soma {
 
@@ -95,7 +95,8 @@ ConfigNode CreatorNode(const ConfigNode& node, const ConfigNode& overrides);
 /// Builds the nested `_target_` children of `node` into `ctx`.
 void BuildChildren(const ConfigNode& node, BuildContext& ctx);
 
-[[noreturn]] void ThrowUnknownKey(std::string_view kind, std::string_view key,
+[[noreturn]] void ThrowUnknownKey(std::string_view kind,
+                                  std::string_view key,
                                   std::string_view path,
                                   const std::vector<std::string>& keys);
 
@@ -122,16 +123,17 @@ class Registry {
   void Register(std::string key, Creator creator) {
     if (global_) internal::ThrowIfFrozen(kind_, key);
     if (creators_.count(key) != 0) {
-      throw InternalError(fmt::format("Duplicate registration of {} '{}'",
-                                      kind_, key));
+      throw InternalError(
+          fmt::format("Duplicate registration of {} '{}'", kind_, key));
     }
     creators_.emplace(key, creator);
     if (!global_) return;
     internal::IndexCreator(
-        key, internal::AnyCreator{
-                 kind_, [creator](const ConfigNode& node, BuildContext& ctx) {
-                   return std::any(std::shared_ptr<Base>(creator(node, ctx)));
-                 }});
+        key,
+        internal::AnyCreator{
+            kind_, [creator](const ConfigNode& node, BuildContext& ctx) {
+              return std::any(std::shared_ptr<Base>(creator(node, ctx)));
+            }});
   }
 
   bool Has(std::string_view key) const {
@@ -147,7 +149,8 @@ class Registry {
 
   /// Creates `key` from `node` (already stripped of `_target_` etc.). Unknown
   /// key: ConfigError naming `node.path()` and listing Keys().
-  std::unique_ptr<Base> Create(std::string_view key, const ConfigNode& node,
+  std::unique_ptr<Base> Create(std::string_view key,
+                               const ConfigNode& node,
                                BuildContext& ctx) const {
     auto it = creators_.find(key);
     if (it == creators_.end()) {
@@ -175,28 +178,33 @@ Registry<Base>& GetRegistry() {
 /// `name`). `overrides` (a map, may be null) is merged into a copy first
 /// (Hydra's call-site overrides).
 template <typename Base>
-std::unique_ptr<Base> Instantiate(const ConfigNode& node, BuildContext& ctx,
+std::unique_ptr<Base> Instantiate(const ConfigNode& node,
+                                  BuildContext& ctx,
                                   const ConfigNode& overrides = ConfigNode()) {
   const Registry<Base>& registry = GetRegistry<Base>();
   if (!node.IsMap()) {
     throw ConfigError(fmt::format(
         "Invalid configuration. {} = {}. Expected a map with '_target_' (or "
         "'name') naming a registered {}; registered: {}{}",
-        node.path().empty() ? "<root>" : node.path(), node.Describe(),
-        registry.kind(), fmt::join(registry.Keys(), ", "),
-        node.source().file.empty() ? "" : " (" + node.source().ToString() + ")"));
+        node.path().empty() ? "<root>" : node.path(),
+        node.Describe(),
+        registry.kind(),
+        fmt::join(registry.Keys(), ", "),
+        node.source().file.empty() ? ""
+                                   : " (" + node.source().ToString() + ")"));
   }
   const std::string key = internal::TargetKey(node);
   if (key.empty()) {
     throw ConfigError(fmt::format(
         "Invalid configuration. {} has no '_target_' (or 'name') key naming "
         "the {} to build; registered: {}",
-        node.path().empty() ? "<root>" : node.path(), registry.kind(),
+        node.path().empty() ? "<root>" : node.path(),
+        registry.kind(),
         fmt::join(registry.Keys(), ", ")));
   }
   if (!registry.Has(key)) {
-    internal::ThrowUnknownKey(registry.kind(), key, node.path(),
-                              registry.Keys());
+    internal::ThrowUnknownKey(
+        registry.kind(), key, node.path(), registry.Keys());
   }
   const ConfigNode stripped = internal::CreatorNode(node, overrides);
   BuildContext child_ctx = ctx;
@@ -231,21 +239,24 @@ std::shared_ptr<T> BuildContext::Child(std::string_view key) const {
   if (const auto* ptr = std::any_cast<std::shared_ptr<T>>(&it->second.object)) {
     return *ptr;
   }
-  throw ConfigError(fmt::format(
-      "Invalid configuration. {}: the nested component is not a {}",
-      it->second.path, T::kRegistryName));
+  throw ConfigError(
+      fmt::format("Invalid configuration. {}: the nested component is not a {}",
+                  it->second.path,
+                  T::kRegistryName));
 }
 
 /// Config groups whose options are components: group name -> a function
 /// that instantiates an option's node (used by `soma --info components` and
 /// the test that builds every option of every group under configs/).
-void RegisterConfigGroup(std::string group, std::string kind,
-                         std::function<void(const ConfigNode&, BuildContext&)>
-                             build);
+void RegisterConfigGroup(
+    std::string group,
+    std::string kind,
+    std::function<void(const ConfigNode&, BuildContext&)> build);
 
 template <typename Base>
 void RegisterConfigGroup(std::string group) {
-  RegisterConfigGroup(std::move(group), std::string(Base::kRegistryName),
+  RegisterConfigGroup(std::move(group),
+                      std::string(Base::kRegistryName),
                       [](const ConfigNode& node, BuildContext& ctx) {
                         Instantiate<Base>(node, ctx);
                       });

@@ -3,13 +3,6 @@
 // before the real experiments land. It minimises f(w) = (w - target)^2 with
 // noisy gradient descent, w0 = 0, gradient noise N(0, noise^2) drawn from the
 // run's seed, and reports the final loss.
-#include <chrono>
-#include <cmath>
-#include <sstream>
-#include <thread>
-
-#include <fmt/format.h>
-
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
@@ -19,16 +12,23 @@
 #include "framework/registry/registry.h"
 #include "framework/tasks/task.h"
 
+#include <fmt/format.h>
+
+#include <chrono>
+#include <cmath>
+#include <sstream>
+#include <thread>
+
 namespace soma {
 namespace {
 
 struct DemoOptions {
-  int steps = 20;           // gradient steps
-  double lr = 0.1;          // step size
-  double target = 1.0;      // minimiser of the objective
-  double noise = 0.05;      // std of the gradient noise
-  int step_ms = 0;          // sleep per step (to make a job take time)
-  int fail_at_step = -1;    // >= 0: throw at that step (failure handling demo)
+  int steps = 20;         // gradient steps
+  double lr = 0.1;        // step size
+  double target = 1.0;    // minimiser of the objective
+  double noise = 0.05;    // std of the gradient noise
+  int step_ms = 0;        // sleep per step (to make a job take time)
+  int fail_at_step = -1;  // >= 0: throw at that step (failure handling demo)
 };
 
 DemoOptions DecodeDemoOptions(const ConfigNode& node) {
@@ -60,25 +60,31 @@ class DemoTask : public Task {
     ProgressBar bar(options_.steps, {.label = "demo", .unit = "steps"});
     for (int step = 0; step < options_.steps; ++step) {
       if (step == options_.fail_at_step) {
-        throw Error(fmt::format("demo task: failing at step {} as configured "
-                                "(task.fail_at_step)",
-                                step));
+        throw Error(
+            fmt::format("demo task: failing at step {} as configured "
+                        "(task.fail_at_step)",
+                        step));
       }
-      const double gradient = 2.0 * (w - options_.target) +
-                              options_.noise * rng.Normal();
+      const double gradient =
+          2.0 * (w - options_.target) + options_.noise * rng.Normal();
       w -= options_.lr * gradient;
       const double loss = (w - options_.target) * (w - options_.target);
       csv << fmt::format("{},{:.9g},{:.9g}\n", step, w, loss);
       if (options_.step_ms > 0) {
-        std::this_thread::sleep_for(std::chrono::milliseconds(options_.step_ms));
+        std::this_thread::sleep_for(
+            std::chrono::milliseconds(options_.step_ms));
       }
       bar.Update(1, fmt::format("loss={:.3g}", loss));
     }
     bar.Finish();
     const double final_loss = (w - options_.target) * (w - options_.target);
     WriteFileAtomic(ctx.output_dir / "metrics.csv", csv.str());
-    SOMA_LOG(INFO, "demo: w={:.6f} loss={:.3e} after {} steps (seed {})", w,
-             final_loss, options_.steps, ctx.seed);
+    SOMA_LOG(INFO,
+             "demo: w={:.6f} loss={:.3e} after {} steps (seed {})",
+             w,
+             final_loss,
+             options_.steps,
+             ctx.seed);
     ctx.ReportMetric("loss", final_loss);
     ctx.ReportMetric("w", w);
   }

@@ -3,13 +3,6 @@
 // upper arm, forearm) of the 41-marker layout on the body at mean shape with
 // the medians over frames of real captures (HDM05 and CMU takes). Writes
 // realism.md / realism.csv and reports the worst segment's relative error.
-#include <fmt/format.h>
-
-#include <algorithm>
-#include <cmath>
-#include <map>
-#include <sstream>
-
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
@@ -17,6 +10,13 @@
 #include "framework/io/c3d.h"
 #include "framework/tasks/components.h"
 #include "framework/tasks/task.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+#include <sstream>
 
 namespace soma {
 namespace {
@@ -29,14 +29,18 @@ struct MarkerPair {
 
 /// Pairs of markers on one rigid segment (CMU/HDM05 41-marker names).
 constexpr MarkerPair kPairs[] = {
-    {"head", "LFHD", "RFHD"},     {"head", "LBHD", "RBHD"},       {"head", "LFHD", "LBHD"},
-    {"head", "RFHD", "RBHD"},     {"pelvis", "LFWT", "RFWT"},     {"pelvis", "LBWT", "RBWT"},
-    {"pelvis", "LFWT", "LBWT"},   {"pelvis", "RFWT", "RBWT"},     {"thigh", "LTHI", "LKNE"},
-    {"thigh", "RTHI", "RKNE"},    {"shank", "LKNE", "LANK"},      {"shank", "RKNE", "RANK"},
-    {"shank", "LSHN", "LANK"},    {"shank", "RSHN", "RANK"},      {"upper_arm", "LSHO", "LELB"},
-    {"upper_arm", "RSHO", "RELB"}, {"upper_arm", "LUPA", "LELB"}, {"upper_arm", "RUPA", "RELB"},
-    {"forearm", "LELB", "LWRA"},  {"forearm", "RELB", "RWRA"},    {"forearm", "LWRA", "LWRB"},
-    {"forearm", "RWRA", "RWRB"},  {"forearm", "LFRM", "LWRB"},    {"forearm", "RFRM", "RWRB"},
+    {"head", "LFHD", "RFHD"},      {"head", "LBHD", "RBHD"},
+    {"head", "LFHD", "LBHD"},      {"head", "RFHD", "RBHD"},
+    {"pelvis", "LFWT", "RFWT"},    {"pelvis", "LBWT", "RBWT"},
+    {"pelvis", "LFWT", "LBWT"},    {"pelvis", "RFWT", "RBWT"},
+    {"thigh", "LTHI", "LKNE"},     {"thigh", "RTHI", "RKNE"},
+    {"shank", "LKNE", "LANK"},     {"shank", "RKNE", "RANK"},
+    {"shank", "LSHN", "LANK"},     {"shank", "RSHN", "RANK"},
+    {"upper_arm", "LSHO", "LELB"}, {"upper_arm", "RSHO", "RELB"},
+    {"upper_arm", "LUPA", "LELB"}, {"upper_arm", "RUPA", "RELB"},
+    {"forearm", "LELB", "LWRA"},   {"forearm", "RELB", "RWRA"},
+    {"forearm", "LWRA", "LWRB"},   {"forearm", "RWRA", "RWRB"},
+    {"forearm", "LFRM", "LWRB"},   {"forearm", "RFRM", "RWRB"},
 };
 
 struct RealismOptions {
@@ -64,7 +68,9 @@ std::vector<double> RealDistances(const std::string& path, int stride) {
     std::vector<double> d;
     for (int t = 0; t < c3d.num_frames; t += std::max(1, stride)) {
       if (!c3d.valid(t, a->second) || !c3d.valid(t, b->second)) continue;
-      d.push_back((c3d.Point(t, a->second) - c3d.Point(t, b->second)).cast<double>().norm() *
+      d.push_back((c3d.Point(t, a->second) - c3d.Point(t, b->second))
+                      .cast<double>()
+                      .norm() *
                   to_metres);
     }
     if (d.empty()) {
@@ -91,12 +97,14 @@ class RealismTask : public Task {
     const size_t num_pairs = std::size(kPairs);
     std::vector<double> synthetic(num_pairs);
     for (size_t i = 0; i < num_pairs; ++i) {
-      const int a = layout.FindLabel(kPairs[i].a), b = layout.FindLabel(kPairs[i].b);
+      const int a = layout.FindLabel(kPairs[i].a),
+                b = layout.FindLabel(kPairs[i].b);
       if (a < 0 || b < 0) {
-        throw ConfigError(fmt::format(
-            "Invalid configuration. The realism check needs the CMU/HDM05 41-marker labels; "
-            "layout has no '{}' (use layout=cmu41)",
-            a < 0 ? kPairs[i].a : kPairs[i].b));
+        throw ConfigError(
+            fmt::format("Invalid configuration. The realism check needs the "
+                        "CMU/HDM05 41-marker labels; "
+                        "layout has no '{}' (use layout=cmu41)",
+                        a < 0 ? kPairs[i].a : kPairs[i].b));
       }
       synthetic[i] = (markers.col(a) - markers.col(b)).norm();
     }
@@ -108,7 +116,8 @@ class RealismTask : public Task {
 
     // Per segment: mean over its pairs of the body distance and of the real
     // distance (mean over takes of the per-take medians).
-    std::map<std::string, std::pair<double, double>> segments;  // body sum, real sum
+    std::map<std::string, std::pair<double, double>>
+        segments;  // body sum, real sum
     std::map<std::string, int> counts;
     std::vector<std::string> order;
     std::ostringstream csv;
@@ -127,12 +136,17 @@ class RealismTask : public Task {
         }
       }
       const double real_mean = n > 0 ? sum / n : std::nan("");
-      csv << fmt::format("{},{}-{},{:.4f}", kPairs[i].segment, kPairs[i].a, kPairs[i].b,
+      csv << fmt::format("{},{}-{},{:.4f}",
+                         kPairs[i].segment,
+                         kPairs[i].a,
+                         kPairs[i].b,
                          synthetic[i]);
       for (const auto& r : real) csv << fmt::format(",{:.4f}", r[i]);
-      csv << fmt::format(",{:.4f},{:.4f}\n", real_mean, synthetic[i] / real_mean - 1);
+      csv << fmt::format(
+          ",{:.4f},{:.4f}\n", real_mean, synthetic[i] / real_mean - 1);
       if (!std::isfinite(real_mean)) continue;
-      if (!segments.count(kPairs[i].segment)) order.push_back(kPairs[i].segment);
+      if (!segments.count(kPairs[i].segment))
+        order.push_back(kPairs[i].segment);
       segments[kPairs[i].segment].first += synthetic[i];
       segments[kPairs[i].segment].second += real_mean;
       ++counts[kPairs[i].segment];
@@ -140,11 +154,17 @@ class RealismTask : public Task {
     std::ostringstream md;
     md << fmt::format(
         "# Realism check: {} body, layout {} markers, mean shape\n\n"
-        "Segment distance = mean over the segment's marker pairs; real = mean over takes of "
-        "the median over frames (every {}th frame). Tolerance {:.0f}%.\n\nTakes: {}\n\n"
-        "| segment | pairs | body (m) | real (m) | relative error | within tolerance |\n"
+        "Segment distance = mean over the segment's marker pairs; real = mean "
+        "over takes of "
+        "the median over frames (every {}th frame). Tolerance "
+        "{:.0f}%.\n\nTakes: {}\n\n"
+        "| segment | pairs | body (m) | real (m) | relative error | within "
+        "tolerance |\n"
         "|---|---|---|---|---|---|\n",
-        body.name, layout.num_markers(), options_.frame_stride, 100 * options_.tolerance,
+        body.name,
+        layout.num_markers(),
+        options_.frame_stride,
+        100 * options_.tolerance,
         fmt::join(options_.files, ", "));
     double worst = 0;
     bool all_pass = true;
@@ -154,17 +174,26 @@ class RealismTask : public Task {
       const bool pass = std::abs(error) <= options_.tolerance;
       all_pass = all_pass && pass;
       worst = std::max(worst, std::abs(error));
-      md << fmt::format("| {} | {} | {:.4f} | {:.4f} | {:+.1f}% | {} |\n", segment,
-                        counts[segment], body_sum / counts[segment], real_sum / counts[segment],
-                        100 * error, pass ? "yes" : "NO");
+      md << fmt::format("| {} | {} | {:.4f} | {:.4f} | {:+.1f}% | {} |\n",
+                        segment,
+                        counts[segment],
+                        body_sum / counts[segment],
+                        real_sum / counts[segment],
+                        100 * error,
+                        pass ? "yes" : "NO");
       ctx.ReportMetric("error_" + segment, error);
     }
-    md << fmt::format("\nWorst segment: {:.1f}% — {}.\n", 100 * worst,
-                      all_pass ? "all segments within tolerance" : "NOT all within tolerance");
+    md << fmt::format("\nWorst segment: {:.1f}% — {}.\n",
+                      100 * worst,
+                      all_pass ? "all segments within tolerance"
+                               : "NOT all within tolerance");
     WriteFileAtomic(ctx.output_dir / "realism.md", md.str());
     WriteFileAtomic(ctx.output_dir / "realism.csv", csv.str());
-    SOMA_LOG(INFO, "realism: worst segment error {:.1f}% (tolerance {:.0f}%): {}", 100 * worst,
-             100 * options_.tolerance, all_pass ? "PASS" : "FAIL");
+    SOMA_LOG(INFO,
+             "realism: worst segment error {:.1f}% (tolerance {:.0f}%): {}",
+             100 * worst,
+             100 * options_.tolerance,
+             all_pass ? "PASS" : "FAIL");
     ctx.ReportMetric("worst_segment_error", worst);
     ctx.ReportMetric("pass", all_pass ? 1.0 : 0.0);
   }
@@ -184,7 +213,8 @@ void RegisterRealismTask(Registry<Task>& registry) {
     reader.Read("frame_stride", &options.frame_stride);
     reader.Check("files", !options.files.empty(), "at least one C3D file");
     reader.Check("tolerance", options.tolerance > 0, "tolerance > 0");
-    reader.Check("frame_stride", options.frame_stride >= 1, "frame_stride >= 1");
+    reader.Check(
+        "frame_stride", options.frame_stride >= 1, "frame_stride >= 1");
     reader.Finish();
     return std::make_unique<RealismTask>(options);
   });

@@ -2,10 +2,10 @@
 // `task=<command>`; the task's options live under `task:` in the config.
 #pragma once
 
-#include <string_view>
-
 #include "framework/config/app.h"
 #include "framework/config/node.h"
+
+#include <string_view>
 
 namespace soma {
 

@@ -1,29 +1,29 @@
 #include "framework/testing/testing.h"
 
-#include <unistd.h>
-
-#include <cstdlib>
-#include <fstream>
+#include "framework/core/build_info.h"
+#include "framework/core/error.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
-#include "framework/core/build_info.h"
-#include "framework/core/error.h"
+#include <cstdlib>
+#include <fstream>
+#include <unistd.h>
 
 namespace soma::testing {
 
 std::filesystem::path CreateTestDir() {
   const ::testing::TestInfo* info =
       ::testing::UnitTest::GetInstance()->current_test_info();
-  std::string name = info ? fmt::format("{}.{}", info->test_suite_name(), info->name())
-                          : std::string("no_test");
+  std::string name =
+      info ? fmt::format("{}.{}", info->test_suite_name(), info->name())
+           : std::string("no_test");
   for (char& c : name) {
     if (c == '/') c = '_';
   }
-  const std::filesystem::path dir =
-      std::filesystem::temp_directory_path() / "somalab_tests" /
-      fmt::format("{}.{}", name, ::getpid());
+  const std::filesystem::path dir = std::filesystem::temp_directory_path() /
+                                    "somalab_tests" /
+                                    fmt::format("{}.{}", name, ::getpid());
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
   return dir;
@@ -38,7 +38,8 @@ std::filesystem::path SharedDataDir() {
   return SourceDir().parent_path() / "shared" / "data";
 }
 
-void WriteTextFile(const std::filesystem::path& dir, const std::string& relative,
+void WriteTextFile(const std::filesystem::path& dir,
+                   const std::string& relative,
                    const std::string& contents) {
   const std::filesystem::path path = dir / relative;
   std::filesystem::create_directories(path.parent_path());

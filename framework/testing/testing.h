@@ -1,6 +1,8 @@
 // Test helpers shared by every test executable (test-only library).
 #pragma once
 
+#include <gtest/gtest.h>
+
 #include <filesystem>
 #include <string>
 
@@ -17,7 +19,21 @@ std::filesystem::path SourceDir();
 std::filesystem::path SharedDataDir();
 
 /// Writes `contents` to `dir/relative` (creating parent directories).
-void WriteTextFile(const std::filesystem::path& dir, const std::string& relative,
+void WriteTextFile(const std::filesystem::path& dir,
+                   const std::string& relative,
                    const std::string& contents);
+
+/// Runs `fn`, which must throw `E`, and returns the exception's message (an
+/// empty string and a test failure if it does not throw).
+template <typename E, typename Fn>
+std::string ErrorMessage(Fn&& fn) {
+  try {
+    fn();
+  } catch (const E& error) {
+    return error.what();
+  }
+  ADD_FAILURE() << "expected an exception";
+  return "";
+}
 
 }  // namespace soma::testing

@@ -4,6 +4,10 @@
 // and every composition error with its exact text.
 #include "framework/config/compose.h"
 
+#include "framework/config/override.h"
+#include "framework/core/error.h"
+#include "framework/testing/testing.h"
+
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
@@ -11,10 +15,6 @@
 #include <map>
 #include <string>
 #include <vector>
-
-#include "framework/config/override.h"
-#include "framework/core/error.h"
-#include "framework/testing/testing.h"
 
 namespace soma {
 namespace {
@@ -251,14 +251,18 @@ TEST(ComposeDefaultsList, NestedGroupDefaults) {
 
   const std::string text = FormatDefaultsList(result);
   EXPECT_THAT(text, HasSubstr("Defaults List\n*************\n"));
-  EXPECT_THAT(text, HasSubstr("| Config path     | Package   | _self_ | "
-                              "Parent        |"));
-  EXPECT_THAT(text, HasSubstr("| server/db/mysql | server.db | False  | "
-                              "server/apache |"));
-  EXPECT_THAT(text, HasSubstr("| server/apache   | server    | True   | "
-                              "config        |"));
-  EXPECT_THAT(text, HasSubstr("| config          |           | True   | "
-                              "<root>        |"));
+  EXPECT_THAT(text,
+              HasSubstr("| Config path     | Package   | _self_ | "
+                        "Parent        |"));
+  EXPECT_THAT(text,
+              HasSubstr("| server/db/mysql | server.db | False  | "
+                        "server/apache |"));
+  EXPECT_THAT(text,
+              HasSubstr("| server/apache   | server    | True   | "
+                        "config        |"));
+  EXPECT_THAT(text,
+              HasSubstr("| config          |           | True   | "
+                        "<root>        |"));
 }
 
 TEST(ComposeDefaultsList, OverrideEntryReplacesNestedChoice) {
@@ -514,8 +518,9 @@ TEST(ComposePackages, PackageDirectiveIsAbsolute) {
   EXPECT_EQ(Str(task, "server.name"), "apache");
   EXPECT_EQ(task.at("server").Find("db"), nullptr);
   // The override key does not depend on the directive.
-  EXPECT_THAT(result.choices, ElementsAre(Pair("server", "apache"),
-                                          Pair("server/db", "mysql")));
+  EXPECT_THAT(
+      result.choices,
+      ElementsAre(Pair("server", "apache"), Pair("server/db", "mysql")));
   EXPECT_EQ(result.defaults[0].package, "foo.bar");
 }
 
@@ -573,7 +578,8 @@ TEST(ComposeExperiments, AppendExperimentWithAbsoluteOverrides) {
   EXPECT_EQ(Str(task, "server.name"), "apache");
   EXPECT_EQ(Int(task, "server.port"), 8080);
   EXPECT_THAT(aplite.choices,
-              ElementsAre(Pair("db", "sqlite"), Pair("server", "apache"),
+              ElementsAre(Pair("db", "sqlite"),
+                          Pair("server", "apache"),
                           Pair("experiment", "aplite")));
 
   const ConfigNode nglite = ComposeTree(dir, {"+experiment=nglite"}).root;
@@ -879,7 +885,8 @@ TEST(ComposeSearchPath, HydraSearchPathAddsRoot) {
   const fs::path base = testing::CreateTestDir();
   testing::WriteTextFile(base, "extra/db/mysql.yaml", "driver: mysql\n");
   testing::WriteTextFile(
-      base, "conf/config.yaml",
+      base,
+      "conf/config.yaml",
       "defaults:\n  - db: mysql\n\nhydra:\n  searchpath:\n    - file://" +
           (base / "extra").string() + "\n");
   const ComposeResult result = ComposeTree(base / "conf");

@@ -2,6 +2,7 @@
 
 #include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
+#include "framework/testing/testing.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -13,16 +14,7 @@
 namespace soma {
 namespace {
 
-template <typename E, typename Fn>
-std::string ErrorMessage(Fn&& fn) {
-  try {
-    fn();
-  } catch (const E& error) {
-    return error.what();
-  }
-  ADD_FAILURE() << "expected an exception";
-  return "";
-}
+using testing::ErrorMessage;
 
 /// OmegaConf's docs/source/config_interpolation.yaml tutorial (plus the
 /// plan-selection example of the interpolation docs).

@@ -1,6 +1,7 @@
 #include "framework/config/node.h"
 
 #include "framework/core/error.h"
+#include "framework/testing/testing.h"
 
 #include <gtest/gtest.h>
 
@@ -13,16 +14,7 @@ namespace soma {
 namespace {
 
 /// Runs `fn` and returns the message of the exception of type E it throws.
-template <typename E, typename Fn>
-std::string ErrorMessage(Fn&& fn) {
-  try {
-    fn();
-  } catch (const E& error) {
-    return error.what();
-  }
-  ADD_FAILURE() << "expected an exception";
-  return "";
-}
+using testing::ErrorMessage;
 
 ConfigNode MakeTrainConfig() {
   ConfigNode root = ConfigNode::EmptyMap();

@@ -13,16 +13,7 @@
 namespace soma {
 namespace {
 
-template <typename E, typename Fn>
-std::string ErrorMessage(Fn&& fn) {
-  try {
-    fn();
-  } catch (const E& error) {
-    return error.what();
-  }
-  ADD_FAILURE() << "expected an exception";
-  return "";
-}
+using testing::ErrorMessage;
 
 struct TypingCase {
   std::string yaml;       // the scalar as written after `v: `

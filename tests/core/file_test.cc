@@ -1,12 +1,12 @@
 #include "framework/core/file.h"
 
+#include "framework/core/error.h"
+#include "framework/testing/testing.h"
+
 #include <gtest/gtest.h>
 
 #include <filesystem>
 #include <stdexcept>
-
-#include "framework/core/error.h"
-#include "framework/testing/testing.h"
 
 namespace soma {
 namespace {

@@ -1,12 +1,12 @@
 #include "framework/core/image.h"
 
-#include <gtest/gtest.h>
-
-#include <zlib.h>
-
 #include "framework/core/file.h"
 #include "framework/core/plot.h"
 #include "framework/testing/testing.h"
+
+#include <gtest/gtest.h>
+
+#include <zlib.h>
 
 namespace soma {
 namespace {
@@ -27,11 +27,13 @@ TEST(Image, PngHasSignatureSizeAndDecodablePixels) {
   EXPECT_EQ(ReadU32(png, 20), 3u);  // IHDR height
   // Inflate the IDAT chunk and check the pixel we set.
   const size_t idat = 8 + 25;  // signature + IHDR chunk
-  ASSERT_EQ(std::string(png.begin() + idat + 4, png.begin() + idat + 8), "IDAT");
+  ASSERT_EQ(std::string(png.begin() + idat + 4, png.begin() + idat + 8),
+            "IDAT");
   const uint32_t length = ReadU32(png, idat);
   std::vector<uint8_t> raw(3 * (7 * 3 + 1));
   uLongf raw_size = raw.size();
-  ASSERT_EQ(uncompress(raw.data(), &raw_size, png.data() + idat + 8, length), Z_OK);
+  ASSERT_EQ(uncompress(raw.data(), &raw_size, png.data() + idat + 8, length),
+            Z_OK);
   ASSERT_EQ(raw_size, raw.size());
   const size_t row1 = 1 * (7 * 3 + 1);
   EXPECT_EQ(raw[row1], 0);  // filter byte
@@ -47,7 +49,8 @@ TEST(Image, TextDrawsInkInsideItsBox) {
   for (int y = 0; y < 10; ++y) {
     for (int x = 0; x < 40; ++x) {
       const bool dark = image.Get(x, y).r == 0;
-      const bool in_box = x >= 1 && x < 1 + Image::TextWidth("C7") && y >= 1 && y < 8;
+      const bool in_box =
+          x >= 1 && x < 1 + Image::TextWidth("C7") && y >= 1 && y < 8;
       ink += dark && in_box;
       outside += dark && !in_box;
     }

@@ -1,12 +1,12 @@
 #include "framework/core/progress.h"
 
+#include "framework/core/file.h"
+#include "framework/core/logging.h"
+#include "framework/testing/testing.h"
+
 #include <gtest/gtest.h>
 
 #include <string>
-
-#include "framework/core/logging.h"
-#include "framework/core/file.h"
-#include "framework/testing/testing.h"
 
 namespace soma {
 namespace {

@@ -44,7 +44,8 @@ TEST(Rng, StreamDependsOnNameNotOnDrawCount) {
 
 TEST(Rng, IndexedStreamsDiffer) {
   Rng root(3);
-  EXPECT_NE(root.Stream(uint64_t{0}).NextU64(), root.Stream(uint64_t{1}).NextU64());
+  EXPECT_NE(root.Stream(uint64_t{0}).NextU64(),
+            root.Stream(uint64_t{1}).NextU64());
 }
 
 TEST(Rng, UniformMomentsAndRange) {

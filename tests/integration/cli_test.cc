@@ -1,23 +1,22 @@
 // End-to-end tests of the `soma` executable: run and multirun directories,
 // the resumable ledger, failures, seed aggregation, the parallel launcher and
 // the one-line errors for bad input.
-#include <fcntl.h>
-#include <signal.h>
-#include <sys/wait.h>
-#include <unistd.h>
-
-#include <gtest/gtest.h>
-
-#include <chrono>
-#include <filesystem>
-#include <string>
-#include <thread>
-#include <vector>
-
 #include "framework/config/node.h"
 #include "framework/config/yaml_io.h"
 #include "framework/core/file.h"
 #include "framework/testing/testing.h"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <fcntl.h>
+#include <filesystem>
+#include <signal.h>
+#include <string>
+#include <sys/wait.h>
+#include <thread>
+#include <unistd.h>
+#include <vector>
 
 namespace soma {
 namespace {
@@ -45,8 +44,10 @@ std::string Quote(const std::string& s) {
 std::string ConfigsDir() { return (testing::SourceDir() / "configs").string(); }
 
 /// Runs `soma args...` in `cwd`, capturing stdout and stderr.
-CommandResult RunSoma(const fs::path& cwd, const std::vector<std::string>& args) {
-  std::string command = "cd " + Quote(cwd.string()) + " && " + Quote(SOMA_BINARY);
+CommandResult RunSoma(const fs::path& cwd,
+                      const std::vector<std::string>& args) {
+  std::string command =
+      "cd " + Quote(cwd.string()) + " && " + Quote(SOMA_BINARY);
   for (const std::string& arg : args) command += " " + Quote(arg);
   const fs::path out = cwd / "stdout.txt", err = cwd / "stderr.txt";
   command += " > " + Quote(out.string()) + " 2> " + Quote(err.string());
@@ -89,8 +90,15 @@ TEST(Cli, CfgJobPrintsTheComposedDefault) {
 
 TEST(Cli, CfgResolvePackageSelectsASubtree) {
   const auto dir = testing::CreateTestDir();
-  const CommandResult r = RunSoma(
-      dir, {"-cp", ConfigsDir(), "--cfg", "job", "--resolve", "-p", "task", "task.steps=7"});
+  const CommandResult r = RunSoma(dir,
+                                  {"-cp",
+                                   ConfigsDir(),
+                                   "--cfg",
+                                   "job",
+                                   "--resolve",
+                                   "-p",
+                                   "task",
+                                   "task.steps=7"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("# @package task"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("steps: 7"), std::string::npos) << r.out;
@@ -98,7 +106,8 @@ TEST(Cli, CfgResolvePackageSelectsASubtree) {
 
 TEST(Cli, InfoDefaultsListsTheTaskGroup) {
   const auto dir = testing::CreateTestDir();
-  const CommandResult r = RunSoma(dir, {"-cp", ConfigsDir(), "--info", "defaults"});
+  const CommandResult r =
+      RunSoma(dir, {"-cp", ConfigsDir(), "--info", "defaults"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   EXPECT_NE(r.out.find("task/demo"), std::string::npos) << r.out;
 }
@@ -107,14 +116,20 @@ TEST(Cli, HelpListsGroupsAndFlags) {
   const auto dir = testing::CreateTestDir();
   const CommandResult r = RunSoma(dir, {"-cp", ConfigsDir(), "--help"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  EXPECT_NE(r.out.find("task: demo"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("task: "), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("demo"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("body: "), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("--multirun"), std::string::npos) << r.out;
 }
 
 TEST(Cli, RunWritesHydraDirectoryLogAndMetrics) {
   const auto dir = testing::CreateTestDir();
-  const CommandResult r = RunSoma(
-      dir, {"-cp", ConfigsDir(), "hydra.run.dir=out/run1", "task.steps=5", "seed=3"});
+  const CommandResult r = RunSoma(dir,
+                                  {"-cp",
+                                   ConfigsDir(),
+                                   "hydra.run.dir=out/run1",
+                                   "task.steps=5",
+                                   "seed=3"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const fs::path run = dir / "out/run1";
   const ConfigNode config = LoadYaml(run / ".hydra/config.yaml");
@@ -142,19 +157,25 @@ TEST(Cli, RunWritesHydraDirectoryLogAndMetrics) {
 TEST(Cli, SameSeedSameMetrics) {
   const auto dir = testing::CreateTestDir();
   for (const char* name : {"a", "b"}) {
-    ASSERT_EQ(RunSoma(dir, {"-cp", ConfigsDir(), std::string("hydra.run.dir=") + name, "seed=5"})
+    ASSERT_EQ(RunSoma(dir,
+                      {"-cp",
+                       ConfigsDir(),
+                       std::string("hydra.run.dir=") + name,
+                       "seed=5"})
                   .exit_code,
               0);
   }
   EXPECT_EQ(ReadFile(dir / "a/metrics.csv"), ReadFile(dir / "b/metrics.csv"));
-  ASSERT_EQ(RunSoma(dir, {"-cp", ConfigsDir(), "hydra.run.dir=c", "seed=6"}).exit_code, 0);
+  ASSERT_EQ(RunSoma(dir, {"-cp", ConfigsDir(), "hydra.run.dir=c", "seed=6"})
+                .exit_code,
+            0);
   EXPECT_NE(ReadFile(dir / "a/metrics.csv"), ReadFile(dir / "c/metrics.csv"));
 }
 
 TEST(Cli, CommandSelectsTheTask) {
   const auto dir = testing::CreateTestDir();
-  const CommandResult r =
-      RunSoma(dir, {"demo", "-cp", ConfigsDir(), "hydra.run.dir=out", "task.steps=2"});
+  const CommandResult r = RunSoma(
+      dir, {"demo", "-cp", ConfigsDir(), "hydra.run.dir=out", "task.steps=2"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const ConfigNode overrides = LoadYaml(dir / "out/.hydra/overrides.yaml");
   EXPECT_EQ(overrides.at(size_t{0}).AsString(), "task=demo");
@@ -162,8 +183,14 @@ TEST(Cli, CommandSelectsTheTask) {
 
 TEST(Cli, MultirunWritesJobsInHydraOrderAndResumes) {
   const auto dir = testing::CreateTestDir();
-  const std::vector<std::string> args = {"-cp", ConfigsDir(), "-cn", "demo", "-m",
-                                         "a=1,2", "b=x,y", "task.steps=3"};
+  const std::vector<std::string> args = {"-cp",
+                                         ConfigsDir(),
+                                         "-cn",
+                                         "demo",
+                                         "-m",
+                                         "a=1,2",
+                                         "b=x,y",
+                                         "task.steps=3"};
   const CommandResult first = RunSoma(dir, args);
   ASSERT_EQ(first.exit_code, 0) << first.err;
   // The sweep dir is stable for the same command: results/multirun/demo-<id>.
@@ -175,7 +202,8 @@ TEST(Cli, MultirunWritesJobsInHydraOrderAndResumes) {
   const fs::path sweep = sweeps[0];
   EXPECT_TRUE(fs::exists(sweep / "multirun.yaml"));
   const ConfigNode multirun = LoadYaml(sweep / "multirun.yaml");
-  const ConfigNode& task_overrides = multirun.at("hydra").at("overrides").at("task");
+  const ConfigNode& task_overrides =
+      multirun.at("hydra").at("overrides").at("task");
   EXPECT_EQ(task_overrides.at(size_t{0}).AsString(), "a=1,2");
   const std::vector<std::pair<std::string, std::string>> expected = {
       {"a=1", "b=x"}, {"a=1", "b=y"}, {"a=2", "b=x"}, {"a=2", "b=y"}};
@@ -206,8 +234,14 @@ TEST(Cli, MultirunWritesJobsInHydraOrderAndResumes) {
 TEST(Cli, KilledSweepFinishesOnlyTheRestOnRerun) {
   const auto dir = testing::CreateTestDir();
   const fs::path sweep = dir / "sweep";
-  std::vector<std::string> args = {"-cp", ConfigsDir(), "-cn", "demo", "-m", "a=1,2,3",
-                                   "task.steps=10", "task.step_ms=60",
+  std::vector<std::string> args = {"-cp",
+                                   ConfigsDir(),
+                                   "-cn",
+                                   "demo",
+                                   "-m",
+                                   "a=1,2,3",
+                                   "task.steps=10",
+                                   "task.step_ms=60",
                                    "hydra.sweep.dir=" + sweep.string()};
   const pid_t pid = ::fork();
   ASSERT_GE(pid, 0);
@@ -231,7 +265,8 @@ TEST(Cli, KilledSweepFinishesOnlyTheRestOnRerun) {
     if (!fs::exists(sweep / "jobs.yaml")) continue;
     try {
       const ConfigNode jobs = LoadYaml(sweep / "jobs.yaml").at("jobs");
-      if (jobs.size() >= 2 && jobs.at(size_t{1}).at("status").AsString() == "running") {
+      if (jobs.size() >= 2 &&
+          jobs.at(size_t{1}).at("status").AsString() == "running") {
         ::kill(pid, SIGKILL);
         killed = true;
       }
@@ -260,12 +295,17 @@ TEST(Cli, KilledSweepFinishesOnlyTheRestOnRerun) {
 
 TEST(Cli, FailedJobDoesNotStopTheSweep) {
   const auto dir = testing::CreateTestDir();
-  const CommandResult r =
-      RunSoma(dir, {"-cp", ConfigsDir(), "-m", "task.fail_at_step=-1,2,-1",
-                    "task.steps=4", "hydra.sweep.dir=sweep"});
+  const CommandResult r = RunSoma(dir,
+                                  {"-cp",
+                                   ConfigsDir(),
+                                   "-m",
+                                   "task.fail_at_step=-1,2,-1",
+                                   "task.steps=4",
+                                   "hydra.sweep.dir=sweep"});
   EXPECT_EQ(r.exit_code, 1);
-  EXPECT_NE(r.err.find("Error executing job with overrides: [task.fail_at_step=2, "),
-            std::string::npos)
+  EXPECT_NE(
+      r.err.find("Error executing job with overrides: [task.fail_at_step=2, "),
+      std::string::npos)
       << r.err;
   const ConfigNode jobs = LoadYaml(dir / "sweep/jobs.yaml").at("jobs");
   EXPECT_EQ(jobs.at(size_t{0}).at("status").AsString(), "done");
@@ -277,9 +317,14 @@ TEST(Cli, FailedJobDoesNotStopTheSweep) {
 
 TEST(Cli, SeedRepeatsAreAggregated) {
   const auto dir = testing::CreateTestDir();
-  const CommandResult r =
-      RunSoma(dir, {"-cp", ConfigsDir(), "-m", "task.lr=0.1,0.3", "seed=range(3)",
-                    "task.steps=5", "hydra.sweep.dir=sweep"});
+  const CommandResult r = RunSoma(dir,
+                                  {"-cp",
+                                   ConfigsDir(),
+                                   "-m",
+                                   "task.lr=0.1,0.3",
+                                   "seed=range(3)",
+                                   "task.steps=5",
+                                   "hydra.sweep.dir=sweep"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const std::string csv = ReadFile(dir / "sweep/summary.csv");
   EXPECT_EQ(CountLines(csv), 3) << csv;  // header + 2 groups
@@ -290,9 +335,14 @@ TEST(Cli, SeedRepeatsAreAggregated) {
 
 TEST(Cli, ParallelLauncherRunsEveryJob) {
   const auto dir = testing::CreateTestDir();
-  const CommandResult r =
-      RunSoma(dir, {"-cp", ConfigsDir(), "-m", "seed=range(4)", "task.steps=3",
-                    "hydra.launcher.n_jobs=2", "hydra.sweep.dir=sweep"});
+  const CommandResult r = RunSoma(dir,
+                                  {"-cp",
+                                   ConfigsDir(),
+                                   "-m",
+                                   "seed=range(4)",
+                                   "task.steps=3",
+                                   "hydra.launcher.n_jobs=2",
+                                   "hydra.sweep.dir=sweep"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const ConfigNode jobs = LoadYaml(dir / "sweep/jobs.yaml").at("jobs");
   ASSERT_EQ(jobs.size(), 4u);
@@ -310,20 +360,23 @@ struct BadInputCase {
   std::string expected;  // substring of the one-line error
 };
 
+void PrintTo(const BadInputCase& c, std::ostream* os) { *os << c.name; }
+
 class BadInput : public ::testing::TestWithParam<BadInputCase> {};
 
 TEST_P(BadInput, OneLineErrorNonZeroExitNoOutput) {
   const BadInputCase& c = GetParam();
   const auto dir = testing::CreateTestDir();
   // A small config tree of its own for cases that need broken files.
-  testing::WriteTextFile(dir, "conf/config.yaml",
+  testing::WriteTextFile(dir,
+                         "conf/config.yaml",
                          "defaults:\n  - task: demo\n  - _self_\nx: 1\n"
                          "hydra:\n  run:\n    dir: out\n");
   testing::WriteTextFile(dir, "conf/task/demo.yaml", "name: demo\nsteps: 2\n");
   testing::WriteTextFile(dir, "conf/task/other.yaml", "name: demo\nsteps: 3\n");
   testing::WriteTextFile(dir, "conf/bad.yaml", "a: [1, 2\nb: 3\n");
-  testing::WriteTextFile(dir, "conf/twice.yaml",
-                         "defaults:\n  - task: demo\n  - task: other\n");
+  testing::WriteTextFile(
+      dir, "conf/twice.yaml", "defaults:\n  - task: demo\n  - task: other\n");
   std::vector<std::string> args = {"-cp", (dir / "conf").string()};
   args.insert(args.end(), c.args.begin(), c.args.end());
   const CommandResult r = RunSoma(dir, args);
@@ -334,22 +387,36 @@ TEST_P(BadInput, OneLineErrorNonZeroExitNoOutput) {
 }
 
 INSTANTIATE_TEST_SUITE_P(
-    Cli, BadInput,
+    Cli,
+    BadInput,
     ::testing::Values(
         BadInputCase{"malformed_yaml", {"-cn", "bad"}, "bad.yaml:"},
-        BadInputCase{"unknown_option", {"task=nope"}, "Available options in 'task': demo, other"},
+        BadInputCase{"unknown_option",
+                     {"task=nope"},
+                     "Available options in 'task': demo, other"},
         BadInputCase{"override_missing_key", {"nokey=1"}, "+nokey=1"},
-        BadInputCase{"append_existing_key", {"+x=2"}, "An item is already at 'x'"},
-        BadInputCase{"sweep_without_m", {"x=1,2"}, "Ambiguous value for argument 'x=1,2'"},
-        BadInputCase{"unknown_flag", {"--frobnicate"}, "Unknown flag '--frobnicate'"},
-        BadInputCase{"missing_config_dir", {"-cp", "/nonexistent/conf"}, "/nonexistent/conf"},
-        BadInputCase{"group_twice", {"-cn", "twice"}, "Multiple values for task"}),
-    [](const ::testing::TestParamInfo<BadInputCase>& info) { return info.param.name; });
+        BadInputCase{
+            "append_existing_key", {"+x=2"}, "An item is already at 'x'"},
+        BadInputCase{"sweep_without_m",
+                     {"x=1,2"},
+                     "Ambiguous value for argument 'x=1,2'"},
+        BadInputCase{
+            "unknown_flag", {"--frobnicate"}, "Unknown flag '--frobnicate'"},
+        BadInputCase{"missing_config_dir",
+                     {"-cp", "/nonexistent/conf"},
+                     "/nonexistent/conf"},
+        BadInputCase{
+            "group_twice", {"-cn", "twice"}, "Multiple values for task"}),
+    [](const ::testing::TestParamInfo<BadInputCase>& info) {
+      return info.param.name;
+    });
 
 TEST(Cli, InterpolationCyclePrintsTheChain) {
   const auto dir = testing::CreateTestDir();
-  testing::WriteTextFile(dir, "conf/config.yaml",
-                         "defaults:\n  - task: demo\n  - _self_\ny: ${z}\nz: ${y}\n");
+  testing::WriteTextFile(
+      dir,
+      "conf/config.yaml",
+      "defaults:\n  - task: demo\n  - _self_\ny: ${z}\nz: ${y}\n");
   testing::WriteTextFile(dir, "conf/task/demo.yaml", "name: demo\nsteps: 2\n");
   const CommandResult r =
       RunSoma(dir, {"-cp", (dir / "conf").string(), "hydra.run.dir=out"});
@@ -363,13 +430,15 @@ TEST(Cli, InterpolationCyclePrintsTheChain) {
 
 TEST(Cli, MandatoryValueReadNamesTheFullKey) {
   const auto dir = testing::CreateTestDir();
-  testing::WriteTextFile(dir, "conf/config.yaml",
-                         "defaults:\n  - task: demo\n  - _self_\n");
-  testing::WriteTextFile(dir, "conf/task/demo.yaml", "name: demo\nsteps: ???\n");
+  testing::WriteTextFile(
+      dir, "conf/config.yaml", "defaults:\n  - task: demo\n  - _self_\n");
+  testing::WriteTextFile(
+      dir, "conf/task/demo.yaml", "name: demo\nsteps: ???\n");
   const CommandResult r =
       RunSoma(dir, {"-cp", (dir / "conf").string(), "hydra.run.dir=out"});
   EXPECT_NE(r.exit_code, 0);
-  EXPECT_NE(r.err.find("MissingMandatoryValue: task.steps"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("MissingMandatoryValue: task.steps"), std::string::npos)
+      << r.err;
   // The run directory exists (the job started) but holds the error, not
   // metrics.
   EXPECT_FALSE(fs::exists(dir / "out/metrics.yaml"));

@@ -2,6 +2,7 @@
 
 #include "framework/core/error.h"
 #include "framework/core/file.h"
+#include "framework/testing/rotations.h"
 #include "framework/testing/testing.h"
 
 #include <gtest/gtest.h>
@@ -17,29 +18,10 @@ namespace soma {
 namespace {
 
 constexpr double kTol = 1e-12;
-constexpr double kPi = 3.14159265358979323846;
-
-Eigen::Matrix3d Rx(double degrees) {
-  const double c = std::cos(degrees * kPi / 180),
-               s = std::sin(degrees * kPi / 180);
-  Eigen::Matrix3d m;
-  m << 1, 0, 0, 0, c, -s, 0, s, c;
-  return m;
-}
-Eigen::Matrix3d Ry(double degrees) {
-  const double c = std::cos(degrees * kPi / 180),
-               s = std::sin(degrees * kPi / 180);
-  Eigen::Matrix3d m;
-  m << c, 0, s, 0, 1, 0, -s, 0, c;
-  return m;
-}
-Eigen::Matrix3d Rz(double degrees) {
-  const double c = std::cos(degrees * kPi / 180),
-               s = std::sin(degrees * kPi / 180);
-  Eigen::Matrix3d m;
-  m << c, -s, 0, s, c, 0, 0, 0, 1;
-  return m;
-}
+using testing::kPi;
+using testing::Rx;
+using testing::Ry;
+using testing::Rz;
 
 // Three joints with unusual channel orders and an End Site; centimetres.
 // Line numbers matter for the error tests below (frame lines are 24-26).

@@ -3,6 +3,7 @@
 #include "framework/core/error.h"
 #include "framework/io/asf_amc.h"
 #include "framework/io/bvh.h"
+#include "framework/testing/rotations.h"
 #include "framework/testing/testing.h"
 
 #include <gtest/gtest.h>
@@ -15,31 +16,12 @@ namespace soma {
 namespace {
 
 constexpr double kTol = 1e-12;
-constexpr double kPi = 3.14159265358979323846;
-
-// Rotation matrices written out element by element (angles in degrees), so
-// the expectations do not share code with the implementation.
-Eigen::Matrix3d Rx(double degrees) {
-  const double c = std::cos(degrees * kPi / 180),
-               s = std::sin(degrees * kPi / 180);
-  Eigen::Matrix3d m;
-  m << 1, 0, 0, 0, c, -s, 0, s, c;
-  return m;
-}
-Eigen::Matrix3d Ry(double degrees) {
-  const double c = std::cos(degrees * kPi / 180),
-               s = std::sin(degrees * kPi / 180);
-  Eigen::Matrix3d m;
-  m << c, 0, s, 0, 1, 0, -s, 0, c;
-  return m;
-}
-Eigen::Matrix3d Rz(double degrees) {
-  const double c = std::cos(degrees * kPi / 180),
-               s = std::sin(degrees * kPi / 180);
-  Eigen::Matrix3d m;
-  m << c, -s, 0, s, c, 0, 0, 0, 1;
-  return m;
-}
+// Rotation matrices written out element by element (testing/rotations.h),
+// so the expectations do not share code with the implementation.
+using testing::kPi;
+using testing::Rx;
+using testing::Ry;
+using testing::Rz;
 
 // root -> a -> b -> b_end, and root -> c.
 Skeleton ChainSkeleton() {

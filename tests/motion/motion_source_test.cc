@@ -1,15 +1,15 @@
 #include "framework/motion/motion_source.h"
 
-#include <gtest/gtest.h>
-
-#include <set>
-
-#include "framework/testing/body_fixture.h"
 #include "framework/config/yaml_io.h"
 #include "framework/core/file.h"
 #include "framework/motion/coverage.h"
 #include "framework/registry/registry.h"
+#include "framework/testing/body_fixture.h"
 #include "framework/testing/testing.h"
+
+#include <gtest/gtest.h>
+
+#include <set>
 
 namespace soma {
 namespace {
@@ -36,13 +36,15 @@ TEST(SplitOf, IsStableAndRoughlyProportional) {
 
 TEST(ProceduralMotionSource, SplitsAreDisjointAndCoverEveryClip) {
   const auto source = Procedural(
-      "name: procedural\nclips_per_type: 3\nduration_s: 0.5\ntypes: [walk, squat, flip]\n");
+      "name: procedural\nclips_per_type: 3\nduration_s: 0.5\ntypes: [walk, "
+      "squat, flip]\n");
   Rng rng(1);
   std::set<std::string> seen;
   int total = 0;
   for (Split split : {Split::kTrain, Split::kVal, Split::kTest}) {
     for (const PoseSequence& clip : source->Load(Body(), split, 30.0, rng)) {
-      EXPECT_TRUE(seen.insert(clip.name).second) << clip.name << " in two splits";
+      EXPECT_TRUE(seen.insert(clip.name).second)
+          << clip.name << " in two splits";
       EXPECT_EQ(clip.frame_rate, 30.0);
       EXPECT_EQ(clip.num_frames(), 15);
       ++total;
@@ -52,16 +54,19 @@ TEST(ProceduralMotionSource, SplitsAreDisjointAndCoverEveryClip) {
 }
 
 TEST(ProceduralMotionSource, RejectsUnknownTypesAndKeys) {
-  EXPECT_THROW(Procedural("name: procedural\ntypes: [moonwalk]\n"), ConfigError);
+  EXPECT_THROW(Procedural("name: procedural\ntypes: [moonwalk]\n"),
+               ConfigError);
   EXPECT_THROW(Procedural("name: procedural\nclip_per_type: 3\n"), ConfigError);
 }
 
 TEST(Coverage, ReportsUprightAndInvertedFramesAndWritesPlots) {
   const auto source = Procedural(
-      "name: procedural\nclips_per_type: 2\nduration_s: 2.0\ntypes: [walk, handstand]\n"
+      "name: procedural\nclips_per_type: 2\nduration_s: 2.0\ntypes: [walk, "
+      "handstand]\n"
       "val_fraction: 0.0\ntest_fraction: 0.0\n");
   Rng rng(3);
-  const std::vector<PoseSequence> clips = source->Load(Body(), Split::kTrain, 30.0, rng);
+  const std::vector<PoseSequence> clips =
+      source->Load(Body(), Split::kTrain, 30.0, rng);
   const CoverageReport report = ComputeCoverage(Body(), clips);
   EXPECT_EQ(report.num_frames, 4 * 60);
   EXPECT_GT(report.UprightFraction(), 0.3);

@@ -1,12 +1,12 @@
 #include "framework/motion/procedural_motion.h"
 
+#include "framework/core/error.h"
+#include "framework/motion/anatomy.h"
+#include "framework/testing/body_fixture.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
-
-#include "framework/testing/body_fixture.h"
-#include "framework/core/error.h"
-#include "framework/motion/anatomy.h"
 
 namespace soma {
 namespace {
@@ -28,15 +28,18 @@ Eigen::Vector3d JointPosition(const BodyPose& pose, int joint) {
 double UprightAngleDeg(const BodyPose& pose) {
   const PosedSkeleton s = Pose(pose);
   const Eigen::Vector3d axis =
-      (s.global[kNeck].translation() - s.global[kPelvis].translation()).normalized();
+      (s.global[kNeck].translation() - s.global[kPelvis].translation())
+          .normalized();
   return std::acos(std::clamp(axis.z(), -1.0, 1.0)) / kDeg;
 }
 
 TEST(Anatomy, HipFlexionMovesTheKneeForward) {
   AnatomicalPose angles{};
   angles[kLeftHip].flexion = 90 * kDeg;
-  const BodyPose pose = ToBodyPose(angles, Eigen::Vector3d::Zero(),
-                                   Eigen::Vector3d::Zero(), Body().num_joints());
+  const BodyPose pose = ToBodyPose(angles,
+                                   Eigen::Vector3d::Zero(),
+                                   Eigen::Vector3d::Zero(),
+                                   Body().num_joints());
   const BodyPose rest = BodyPose::Rest(Body().num_joints());
   // The body faces -Y: a flexed hip brings the knee forward (-Y) and up.
   const Eigen::Vector3d knee = JointPosition(pose, kLeftKnee);
@@ -54,13 +57,18 @@ TEST(Anatomy, LeftAndRightAnglesGiveMirrorPoses) {
   angles[kLeftShoulder] = {40 * kDeg, -30 * kDeg, 20 * kDeg};
   angles[kRightShoulder] = angles[kLeftShoulder];
   angles[kLeftElbow].flexion = angles[kRightElbow].flexion = 70 * kDeg;
-  const BodyPose pose = ToBodyPose(angles, Eigen::Vector3d::Zero(),
-                                   Eigen::Vector3d::Zero(), Body().num_joints());
+  const BodyPose pose = ToBodyPose(angles,
+                                   Eigen::Vector3d::Zero(),
+                                   Eigen::Vector3d::Zero(),
+                                   Body().num_joints());
   const PosedSkeleton s = Pose(pose);
   const double center_x = s.global[kPelvis].translation().x();
-  for (auto [l, r] : {std::pair{kLeftKnee, kRightKnee}, std::pair{kLeftAnkle, kRightAnkle},
-                      std::pair{kLeftElbow, kRightElbow}, std::pair{kLeftWrist, kRightWrist}}) {
-    const Eigen::Vector3d pl = s.global[l].translation(), pr = s.global[r].translation();
+  for (auto [l, r] : {std::pair{kLeftKnee, kRightKnee},
+                      std::pair{kLeftAnkle, kRightAnkle},
+                      std::pair{kLeftElbow, kRightElbow},
+                      std::pair{kLeftWrist, kRightWrist}}) {
+    const Eigen::Vector3d pl = s.global[l].translation(),
+                          pr = s.global[r].translation();
     EXPECT_NEAR(pl.x() - center_x, -(pr.x() - center_x), 0.01) << l;
     EXPECT_NEAR(pl.y(), pr.y(), 0.01) << l;
     EXPECT_NEAR(pl.z(), pr.z(), 0.01) << l;
@@ -68,11 +76,15 @@ TEST(Anatomy, LeftAndRightAnglesGiveMirrorPoses) {
 }
 
 TEST(Anatomy, StandingArmsHangBesideTheBody) {
-  const BodyPose pose = ToBodyPose(StandingPose(), Eigen::Vector3d::Zero(),
-                                   Eigen::Vector3d::Zero(), Body().num_joints());
+  const BodyPose pose = ToBodyPose(StandingPose(),
+                                   Eigen::Vector3d::Zero(),
+                                   Eigen::Vector3d::Zero(),
+                                   Body().num_joints());
   const PosedSkeleton s = Pose(pose);
-  EXPECT_LT(s.global[kLeftWrist].translation().z(), s.global[kLeftElbow].translation().z());
-  EXPECT_LT(s.global[kLeftElbow].translation().z(), s.global[kLeftShoulder].translation().z());
+  EXPECT_LT(s.global[kLeftWrist].translation().z(),
+            s.global[kLeftElbow].translation().z());
+  EXPECT_LT(s.global[kLeftElbow].translation().z(),
+            s.global[kLeftShoulder].translation().z());
 }
 
 class EveryProceduralMotion : public ::testing::TestWithParam<std::string> {};
@@ -81,7 +93,8 @@ TEST_P(EveryProceduralMotion, GeneratesGroundedFiniteFrames) {
   Rng rng = Rng(7).Stream(GetParam());
   ProceduralMotionOptions options;
   options.duration_s = 3.0;
-  const PoseSequence seq = GenerateProceduralMotion(GetParam(), Body(), options, rng);
+  const PoseSequence seq =
+      GenerateProceduralMotion(GetParam(), Body(), options, rng);
   ASSERT_EQ(seq.num_frames(), 90);
   EXPECT_EQ(seq.name, GetParam());
   const Eigen::Matrix3Xd rest = Body().RestJoints(Body().template_vertices);
@@ -92,14 +105,16 @@ TEST_P(EveryProceduralMotion, GeneratesGroundedFiniteFrames) {
     // Recomputing ground contact must not move a grounded frame.
     BodyPose copy = pose;
     ApplyGroundContact(Body(), rest, copy, 0.0);
-    if (std::abs(copy.translation.z() - pose.translation.z()) < 1e-9) ++grounded;
+    if (std::abs(copy.translation.z() - pose.translation.z()) < 1e-9)
+      ++grounded;
     // Nothing goes through the floor.
     EXPECT_LE(copy.translation.z(), pose.translation.z() + 1e-9);
   }
   EXPECT_GT(grounded, seq.num_frames() / 3);
 }
 
-INSTANTIATE_TEST_SUITE_P(All, EveryProceduralMotion,
+INSTANTIATE_TEST_SUITE_P(All,
+                         EveryProceduralMotion,
                          ::testing::ValuesIn(ProceduralMotionTypes()));
 
 TEST(ProceduralMotion, SameSeedSameClip) {
@@ -117,16 +132,20 @@ TEST(ProceduralMotion, WalkMovesForward) {
   Rng rng(11);
   const PoseSequence seq = GenerateProceduralMotion("walk", Body(), {}, rng);
   const double distance =
-      (seq.frames.back().translation - seq.frames.front().translation).head<2>().norm();
+      (seq.frames.back().translation - seq.frames.front().translation)
+          .head<2>()
+          .norm();
   EXPECT_GT(distance, 0.6 * 4.0 * 0.8);  // >= ~0.6 m/s for 4 s
 }
 
 TEST(ProceduralMotion, CoversUprightFloorAndInvertedFrames) {
   Rng rng(5);
   int upright = 0, horizontal = 0, inverted = 0;
-  for (const char* type : {"walk", "lie_down", "crawl", "handstand", "cartwheel"}) {
+  for (const char* type :
+       {"walk", "lie_down", "crawl", "handstand", "cartwheel"}) {
     Rng clip_rng = rng.Stream(type);
-    const PoseSequence seq = GenerateProceduralMotion(type, Body(), {}, clip_rng);
+    const PoseSequence seq =
+        GenerateProceduralMotion(type, Body(), {}, clip_rng);
     for (const BodyPose& pose : seq.frames) {
       const double angle = UprightAngleDeg(pose);
       upright += angle < 30;

@@ -1,14 +1,14 @@
 // Walks every config group under configs/ and builds each option through the
 // registry, so a YAML file whose component is missing (or whose options the
 // component rejects) fails CI.
-#include <gtest/gtest.h>
-
-#include <string>
-
 #include "framework/config/compose.h"
 #include "framework/config/interpolation.h"
 #include "framework/registry/registry.h"
 #include "framework/testing/testing.h"
+
+#include <gtest/gtest.h>
+
+#include <string>
 
 namespace soma {
 namespace {
@@ -74,7 +74,8 @@ TEST(ConfigGroups, EveryOptionComposesAndBuilds) {
           it->second.build(*node, ctx);
           ADD_FAILURE() << "built although a mandatory value is missing";
         } catch (const MissingMandatoryValue& e) {
-          EXPECT_NE(std::string(e.what()).find(PackageOf(group) + "."), std::string::npos)
+          EXPECT_NE(std::string(e.what()).find(PackageOf(group) + "."),
+                    std::string::npos)
               << e.what();
         }
         continue;

@@ -1,11 +1,11 @@
 #include "framework/registry/registry.h"
 
+#include "framework/config/yaml_io.h"
+#include "framework/tasks/task.h"
+
 #include <gtest/gtest.h>
 
 #include <string>
-
-#include "framework/config/yaml_io.h"
-#include "framework/tasks/task.h"
 
 namespace soma {
 namespace {
@@ -74,11 +74,12 @@ TEST(Registry, KeysAreSorted) {
 
 TEST(Registry, GlobalRegistriesAreFrozenAfterInit) {
   EXPECT_TRUE(RegistriesFrozen());
-  EXPECT_THROW(GetRegistry<Task>().Register(
-                   "late", [](const ConfigNode&, BuildContext&) {
-                     return std::unique_ptr<Task>();
-                   }),
-               InternalError);
+  EXPECT_THROW(
+      GetRegistry<Task>().Register("late",
+                                   [](const ConfigNode&, BuildContext&) {
+                                     return std::unique_ptr<Task>();
+                                   }),
+      InternalError);
 }
 
 TEST(Instantiate, UnknownTaskNameListsRegisteredTasks) {
