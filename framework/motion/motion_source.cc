@@ -4,6 +4,7 @@
 #include "framework/core/error.h"
 #include "framework/io/asf_amc.h"
 #include "framework/io/bvh.h"
+#include "framework/motion/amass.h"
 #include "framework/motion/procedural_motion.h"
 #include "framework/motion/retarget.h"
 #include "framework/registry/registry.h"
@@ -114,7 +115,7 @@ std::vector<std::filesystem::path> ListFiles(const std::string& dir,
 /// Real clips read from files (BVH or ASF/AMC), retargeted onto the body.
 class FileMotionSource : public MotionSource {
  public:
-  enum class Format { kBvh, kAsfAmc };
+  enum class Format { kBvh, kAsfAmc, kAmass };
   struct Options {
     Format format = Format::kBvh;
     std::string dir;
@@ -130,7 +131,19 @@ class FileMotionSource : public MotionSource {
                                  double frame_rate,
                                  Rng& rng) const override {
     std::vector<PoseSequence> clips;
-    if (options_.format == Format::kBvh) {
+    if (options_.format == Format::kAmass) {
+      for (const auto& file : ListFiles(options_.dir, ".npz", "dir")) {
+        if (SplitOf(file.stem().string(), rng.seed(), options_.split) != split)
+          continue;
+        PoseSequence sequence =
+            ResamplePoseSequence(LoadAmassNpz(file, body), frame_rate);
+        if (options_.max_frames_per_clip > 0 &&
+            sequence.num_frames() > options_.max_frames_per_clip) {
+          sequence.frames.resize(options_.max_frames_per_clip);
+        }
+        clips.push_back(std::move(sequence));
+      }
+    } else if (options_.format == Format::kBvh) {
       for (const auto& file : ListFiles(options_.dir, ".bvh", "dir")) {
         if (SplitOf(file.stem().string(), rng.seed(), options_.split) != split)
           continue;
@@ -257,6 +270,10 @@ void RegisterMotionSources() {
   registry.Register("asf_amc", [](const ConfigNode& node, BuildContext&) {
     return std::make_unique<FileMotionSource>(
         DecodeFileOptions(node, FileMotionSource::Format::kAsfAmc));
+  });
+  registry.Register("amass", [](const ConfigNode& node, BuildContext&) {
+    return std::make_unique<FileMotionSource>(
+        DecodeFileOptions(node, FileMotionSource::Format::kAmass));
   });
   RegisterConfigGroup<MotionSource>("motion");
 }
