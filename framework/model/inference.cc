@@ -1,0 +1,131 @@
+#include "framework/model/inference.h"
+
+#include "framework/config/decode.h"
+#include "framework/core/error.h"
+#include "framework/core/random.h"
+#include "framework/model/fast_labeler.h"
+#include "framework/model/labeler.h"
+#include "framework/model/torch_utils.h"
+
+#include <fmt/format.h>
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <utility>
+#include <vector>
+
+namespace soma {
+
+void InferenceOptions::Validate() const {
+  if (batch_size <= 0) {
+    throw ConfigError(
+        fmt::format("Invalid configuration. batch_size = {}. Violated "
+                    "constraint: batch_size > 0",
+                    batch_size));
+  }
+}
+
+InferenceOptions DecodeInferenceOptions(const ConfigNode& node) {
+  ConfigReader reader(node);
+  InferenceOptions options;
+  reader.Read("batch_size", &options.batch_size);
+  reader.Read("permute", &options.permute);
+  reader.Read("seed", &options.seed);
+  reader.Read("use_fast_path", &options.use_fast_path);
+  reader.Check("batch_size", options.batch_size > 0, "batch_size > 0");
+  reader.Finish();
+  return options;
+}
+
+at::Tensor ResolveDuplicateLabels(const at::Tensor& label_ids,
+                                  const at::Tensor& valid,
+                                  int64_t num_labels) {
+  if (label_ids.dim() != 2 || !label_ids.sizes().equals(valid.sizes())) {
+    throw ShapeError(fmt::format(
+        "ResolveDuplicateLabels: label_ids {} and valid {} must be T x P",
+        ShapeString(label_ids),
+        ShapeString(valid)));
+  }
+  const torch::Tensor null =
+      torch::full_like(label_ids, num_labels, torch::kLong);
+  const torch::Tensor ids =
+      torch::where(valid.to(torch::kBool), label_ids.to(torch::kLong), null);
+  // Per frame: how many valid points claim each label (column L = null).
+  const torch::Tensor counts =
+      torch::zeros({ids.size(0), num_labels + 1}, torch::kLong)
+          .scatter_add_(1, ids, torch::ones_like(ids));
+  const torch::Tensor duplicate =
+      counts.gather(1, ids).ge(2).logical_and(ids.lt(num_labels));
+  return ids.masked_fill(duplicate, num_labels);
+}
+
+FrameLabeler::FrameLabeler(std::shared_ptr<LabelerImpl> model,
+                           const InferenceOptions& options)
+    : model_(std::move(model)), options_(options) {
+  SOMA_CHECK(model_ != nullptr) << "FrameLabeler needs a model";
+  options_.Validate();
+  model_->eval();
+  if (options_.use_fast_path && FastLabeler::Supports(*model_)) {
+    fast_ = std::make_unique<FastLabeler>(*model_);
+  }
+}
+
+FrameLabeler::~FrameLabeler() = default;
+FrameLabeler::FrameLabeler(FrameLabeler&&) noexcept = default;
+FrameLabeler& FrameLabeler::operator=(FrameLabeler&&) noexcept = default;
+
+int64_t FrameLabeler::num_labels() const { return model_->num_labels(); }
+
+FrameLabels FrameLabeler::Label(const at::Tensor& points_in) const {
+  if (points_in.dim() != 3 || points_in.size(2) != 3) {
+    throw ShapeError(
+        fmt::format("FrameLabeler: points must be T x P x 3, got {}",
+                    ShapeString(points_in)));
+  }
+  c10::InferenceMode inference_mode;
+  const torch::Tensor points =
+      points_in.to(torch::kCPU, torch::kFloat).contiguous();
+  const int64_t frames = points.size(0);
+  const int64_t p = points.size(1);
+  const int64_t l = num_labels();
+  FrameLabels result;
+  result.label_confidence = torch::empty({frames, p, l + 1}, torch::kFloat);
+  result.predicted_ids = torch::empty({frames, p}, torch::kLong);
+  const Rng root(options_.seed);
+  for (int64_t t0 = 0; t0 < frames; t0 += options_.batch_size) {
+    const int64_t t1 = std::min<int64_t>(frames, t0 + options_.batch_size);
+    torch::Tensor batch = points.narrow(0, t0, t1 - t0);
+    torch::Tensor order;  // network slot -> input point, per frame
+    if (options_.permute && p > 1) {
+      std::vector<int64_t> indices;
+      indices.reserve(static_cast<size_t>((t1 - t0) * p));
+      for (int64_t t = t0; t < t1; ++t) {
+        const std::vector<int> perm = root.Stream(static_cast<uint64_t>(t))
+                                          .Permutation(static_cast<int>(p));
+        indices.insert(indices.end(), perm.begin(), perm.end());
+      }
+      order = torch::tensor(indices, torch::kLong).view({t1 - t0, p});
+      batch = batch.gather(1, order.unsqueeze(-1).expand({t1 - t0, p, 3}));
+    }
+    LabelerOutput out =
+        fast_ != nullptr ? fast_->Forward(batch) : model_->forward(batch);
+    torch::Tensor confidence = out.label_confidence;
+    torch::Tensor ids = out.label_ids;
+    if (order.defined()) {
+      // Invert: output slot i holds input point order[i].
+      confidence =
+          torch::empty_like(confidence)
+              .scatter_(1,
+                        order.unsqueeze(-1).expand({t1 - t0, p, l + 1}),
+                        confidence);
+      ids = torch::empty_like(ids).scatter_(1, order, ids);
+    }
+    result.label_confidence.narrow(0, t0, t1 - t0).copy_(confidence);
+    result.predicted_ids.narrow(0, t0, t1 - t0).copy_(ids);
+  }
+  result.label_ids =
+      ResolveDuplicateLabels(result.predicted_ids, points.ne(0).any(-1), l);
+  return result;
+}
+
+}  // namespace soma

@@ -1,0 +1,88 @@
+// Per-frame labelling of raw mocap point clouds with a trained labeler
+// (REFERENCE 5.3-5.4; paper Sec. 4.5 "Using SOMA", per-frame mode).
+//
+//   FrameLabeler labeler(model.ptr(), options);
+//   FrameLabels labels = labeler.Label(points);  // points: T x P x 3
+//
+// Frames are processed in batches of `batch_size`; each frame's points get an
+// independent random permutation (seeded) before the network and the outputs
+// are permuted back. No confidence threshold is applied. If two or more
+// points of a frame are assigned the same real label, all of them become null.
+#pragma once
+
+#include "framework/config/node.h"
+
+#include <ATen/core/Tensor.h>
+
+#include <cstdint>
+#include <memory>
+
+namespace soma {
+
+class LabelerImpl;
+class FastLabeler;
+
+/// Options of FrameLabeler.
+struct InferenceOptions {
+  int batch_size = 512;  // frames per forward pass (released default)
+  /// Apply a random permutation to each frame's points before the network and
+  /// invert it on the outputs (REFERENCE 5.3). Frame t of a Label() call uses
+  /// Rng(seed).Stream(t), so results do not depend on batch_size.
+  bool permute = true;
+  uint64_t seed = 0;
+  /// Use the optimised FastLabeler (same results to ~1e-5) when the model is
+  /// supported; else the libtorch forward.
+  bool use_fast_path = true;
+  void Validate() const;  // ConfigError on violation
+};
+
+/// Decodes `batch_size`, `permute`, `seed`, `use_fast_path` (unknown keys are
+/// an error).
+InferenceOptions DecodeInferenceOptions(const ConfigNode& node);
+
+/// Per-point labels of T frames of P points, L labels (null id = L).
+struct FrameLabels {
+  /// `T x P` int64: final labels after the duplicate rule; zero (missing)
+  /// points are always null.
+  at::Tensor label_ids;
+  /// `T x P` int64: the network's argmax over the L+1 columns, before the
+  /// duplicate rule (zero points included).
+  at::Tensor predicted_ids;
+  /// `T x P x (L+1)` float: per-point label distribution (exp of A' point
+  /// rows), in the input point order.
+  at::Tensor label_confidence;
+};
+
+/// REFERENCE 5.4: `label_ids` (`T x P` int64, null = `num_labels`) with every
+/// point whose `valid` (`T x P` bool) flag is false set to null, and every
+/// real label carried by two or more valid points of a frame demoted to null
+/// on all of those points.
+at::Tensor ResolveDuplicateLabels(const at::Tensor& label_ids,
+                                  const at::Tensor& valid,
+                                  int64_t num_labels);
+
+/// Batched per-frame inference with a labeler (eval mode, no autograd).
+class FrameLabeler {
+ public:
+  /// Puts `model` in eval mode; with `use_fast_path`, snapshots its weights
+  /// into a FastLabeler (later weight changes are not seen: rebuild).
+  explicit FrameLabeler(std::shared_ptr<LabelerImpl> model,
+                        const InferenceOptions& options = {});
+  ~FrameLabeler();
+  FrameLabeler(FrameLabeler&&) noexcept;
+  FrameLabeler& operator=(FrameLabeler&&) noexcept;
+
+  /// `points`: `T x P x 3` float, (0,0,0) = missing/padding.
+  FrameLabels Label(const at::Tensor& points) const;
+
+  int64_t num_labels() const;
+  bool uses_fast_path() const { return fast_ != nullptr; }
+  const InferenceOptions& options() const { return options_; }
+
+ private:
+  std::shared_ptr<LabelerImpl> model_;
+  InferenceOptions options_;
+  std::unique_ptr<FastLabeler> fast_;
+};
+
+}  // namespace soma

@@ -1,0 +1,185 @@
+#include "framework/model/labeler.h"
+
+#include "framework/config/decode.h"
+#include "framework/core/error.h"
+#include "framework/model/register.h"
+#include "framework/model/torch_utils.h"
+#include "framework/registry/registry.h"
+
+#include <fmt/format.h>
+#include <torch/torch.h>
+
+#include <limits>
+#include <utility>
+#include <vector>
+
+namespace soma {
+
+void LabelerOptions::Validate() const {
+  auto fail =
+      [](std::string_view key, int64_t value, std::string_view constraint) {
+        throw ConfigError(fmt::format(
+            "Invalid configuration. {} = {}. Violated constraint: {}",
+            key,
+            value,
+            constraint));
+      };
+  if (num_labels <= 0) fail("num_labels", num_labels, "num_labels > 0");
+  if (d_model <= 0) fail("d_model", d_model, "d_model > 0");
+  if (hidden <= 0) fail("hidden", hidden, "hidden > 0");
+}
+
+at::Tensor MedianOffsets(const at::Tensor& points) {
+  if (points.dim() != 3 || points.size(2) != 3) {
+    throw ShapeError(
+        fmt::format("MedianOffsets: points must be B x N x 3, got {}",
+                    ShapeString(points)));
+  }
+  const int64_t batch = points.size(0);
+  if (points.size(1) == 0) return torch::zeros({batch, 3}, points.options());
+  const torch::Tensor nonzero = points.ne(0).any(-1);  // B x N
+  // Zero points sort last; the lower median of the `count` non-zero values
+  // of a coordinate is then at index (count - 1) / 2 (torch.median).
+  const torch::Tensor filled =
+      points.masked_fill(nonzero.logical_not().unsqueeze(-1),
+                         std::numeric_limits<float>::infinity());
+  const torch::Tensor sorted = std::get<0>(filled.sort(1));
+  const torch::Tensor count = nonzero.sum(1);  // B, int64
+  const torch::Tensor index = torch::div(count - 1, 2, "floor").clamp_min(0);
+  const torch::Tensor median =
+      sorted.gather(1, index.view({batch, 1, 1}).expand({batch, 1, 3}))
+          .squeeze(1);
+  return torch::where(
+      count.gt(0).unsqueeze(-1), median, torch::zeros_like(median));
+}
+
+at::Tensor MedianCenter(const at::Tensor& points) {
+  return points - MedianOffsets(points).unsqueeze(1);
+}
+
+LabelerImpl::LabelerImpl(
+    const LabelerOptions& options,
+    std::shared_ptr<BackboneImpl> backbone_module,
+    std::shared_ptr<NormalizationImpl> normalization_module)
+    : options_(options) {
+  options_.Validate();
+  SOMA_CHECK(backbone_module != nullptr && normalization_module != nullptr)
+      << "Labeler needs a backbone and a normalization";
+  SOMA_CHECK_EQ(backbone_module->d_model(), options_.d_model);
+  encoder = register_module("encoder",
+                            PointEncoder(options_.d_model, options_.hidden));
+  backbone = register_module("backbone", Backbone(std::move(backbone_module)));
+  head = register_module(
+      "head",
+      ScoreHead(options_.d_model,
+                options_.hidden,
+                normalization_module->NumScoreColumns(options_.num_labels)));
+  normalization = register_module(
+      "normalization", Normalization(std::move(normalization_module)));
+}
+
+LabelerOutput LabelerImpl::forward(const torch::Tensor& points,
+                                   bool return_attention) {
+  if (points.dim() != 3 || points.size(2) != 3) {
+    throw ShapeError(fmt::format("Labeler: points must be B x N x 3, got {}",
+                                 ShapeString(points)));
+  }
+  const int64_t n = points.size(1);
+  LabelerOutput out;
+  const torch::Tensor centred = MedianCenter(points);
+  torch::Tensor features = encoder(centred.transpose(1, 2));
+  std::vector<torch::Tensor> attention;
+  features =
+      backbone->forward(features, return_attention ? &attention : nullptr);
+  out.scores = head(features);
+  out.log_assignment = normalization->forward(out.scores);
+  const torch::Tensor point_rows = out.log_assignment.narrow(1, 0, n);
+  out.label_confidence = point_rows.exp();
+  out.label_ids = point_rows.argmax(-1);
+  if (return_attention && !attention.empty())
+    out.attention = torch::stack(attention, 1);
+  return out;
+}
+
+int64_t CountTrainableParameters(const torch::nn::Module& module) {
+  int64_t count = 0;
+  for (const torch::Tensor& p : module.parameters(/*recurse=*/true)) {
+    if (p.requires_grad()) count += p.numel();
+  }
+  return count;
+}
+
+namespace {
+
+/// `name: soma`: the SOMA score predictor with a configurable backbone.
+class SomaModelSpec : public ModelSpec {
+ public:
+  SomaModelSpec(LabelerOptions options, std::shared_ptr<BackboneSpec> backbone)
+      : options_(options), backbone_(std::move(backbone)) {}
+
+  Labeler Build(int64_t num_labels,
+                Normalization normalization) const override {
+    LabelerOptions options = options_;
+    options.num_labels = num_labels;
+    if (num_labels <= 0) {
+      throw ConfigError(fmt::format(
+          "Labeler: the marker layout has {} labels; at least one is needed",
+          num_labels));
+    }
+    return Labeler(options,
+                   backbone_->Build(options.d_model, options.hidden).ptr(),
+                   normalization.ptr());
+  }
+
+ private:
+  LabelerOptions options_;
+  std::shared_ptr<BackboneSpec> backbone_;
+};
+
+}  // namespace
+
+void RegisterModelSpecs() {
+  GetRegistry<ModelSpec>().Register(
+      "soma", [](const ConfigNode& node, BuildContext& ctx) {
+        ConfigReader reader(node);
+        LabelerOptions options;
+        reader.Read("d_model", &options.d_model);
+        reader.Read("hidden", &options.hidden);
+        reader.Check("d_model", options.d_model > 0, "d_model > 0");
+        reader.Check("hidden", options.hidden > 0, "hidden > 0");
+        const ConfigNode* backbone_node = reader.Child("backbone");
+        reader.Finish();
+        if (backbone_node == nullptr || !backbone_node->IsMap()) {
+          throw ConfigError(
+              fmt::format("Invalid configuration. {}.backbone: expected a map "
+                          "with 'name' naming a "
+                          "backbone ({})",
+                          node.path().empty() ? "model" : node.path(),
+                          fmt::join(GetRegistry<BackboneSpec>().Keys(), ", ")));
+        }
+        std::shared_ptr<BackboneSpec> backbone =
+            Instantiate<BackboneSpec>(*backbone_node, ctx);
+        backbone->CheckCompatible(options.d_model, backbone_node->path());
+        return std::make_unique<SomaModelSpec>(options, std::move(backbone));
+      });
+  RegisterConfigGroup<ModelSpec>("model");
+}
+
+Labeler BuildLabeler(const ConfigNode& model,
+                     const ConfigNode& normalization,
+                     int64_t num_labels,
+                     BuildContext& ctx) {
+  const std::unique_ptr<ModelSpec> spec = Instantiate<ModelSpec>(model, ctx);
+  std::shared_ptr<NormalizationImpl> norm =
+      Instantiate<NormalizationImpl>(normalization, ctx);
+  return spec->Build(num_labels, Normalization(std::move(norm)));
+}
+
+Labeler BuildLabeler(const ConfigNode& model,
+                     const ConfigNode& normalization,
+                     int64_t num_labels) {
+  BuildContext ctx;
+  return BuildLabeler(model, normalization, num_labels, ctx);
+}
+
+}  // namespace soma

@@ -1,0 +1,117 @@
+// The SOMA labeler (paper Fig. 3, Sec. 4.1-4.2, Appendix B; REFERENCE 1):
+// median centring -> point encoder -> backbone (stacked self-attention by
+// default) -> score head -> normalization (log-domain optimal transport by
+// default).
+//
+// Build one from configs with
+//
+//   Labeler model = BuildLabeler(cfg.at("model"), cfg.at("normalization"),
+//                                layout.num_labels());
+//
+// The number of labels L comes from the marker layout at build time, never
+// from the YAML. At d_model 125, 8 layers, 5 heads and L = 41 the model has
+// 1,435,471 trainable parameters (REFERENCE 1.8).
+//
+// Parameter names: `encoder.block.*`, `backbone.self_attention_layers.{i}.*`
+// (or `backbone.res_conv1d_blocks.{i}.*`), `head.block.*`,
+// `head.classifier.*`, `normalization.bin_score`. The released checkpoint
+// (REFERENCE 1.7) maps by prefix: `score_predictor.score_predictor_b1.1.` ->
+// `encoder.block.`, `score_predictor.point_attention.` -> `backbone.`,
+// `score_predictor.conv1d_block.` -> `backbone.`,
+// `score_predictor.score_predictor_b2.1.` -> `head.block.`,
+// `score_predictor.score_predictor_b2.4.` -> `head.classifier.`, `bin_score`
+// -> `normalization.bin_score`.
+#pragma once
+
+#include "framework/config/node.h"
+#include "framework/model/labeler_output.h"
+#include "framework/model/layers.h"
+#include "framework/model/normalization.h"
+
+#include <torch/nn/module.h>
+#include <torch/nn/pimpl.h>
+
+#include <cstdint>
+#include <memory>
+#include <string_view>
+
+namespace soma {
+
+class BuildContext;
+
+/// Architecture options of the labeler shared by every backbone.
+struct LabelerOptions {
+  int64_t num_labels = 0;  // L, from the marker layout (null id = L)
+  int64_t d_model = 125;   // feature width D
+  int64_t hidden = 256;    // hidden width of the encoder/head ResConv1DBlocks
+  void Validate() const;   // ConfigError on violation
+};
+
+/// Per-frame median centring (REFERENCE 1.1): for every frame, the offset is
+/// the per-coordinate *lower* median over the non-zero points (a point is
+/// zero when all three coordinates are exactly 0), or (0,0,0) when the frame
+/// has no non-zero point. The offset is subtracted from all N points,
+/// including zero points. `points`: `B x N x 3` -> `B x N x 3`.
+at::Tensor MedianCenter(const at::Tensor& points);
+/// The offsets themselves, `B x 3`.
+at::Tensor MedianOffsets(const at::Tensor& points);
+
+/// The composed labeler. Children: `encoder`, `backbone`, `head`,
+/// `normalization`.
+class LabelerImpl : public torch::nn::Module {
+ public:
+  /// `backbone->d_model()` must equal `options.d_model`; the head gets
+  /// `normalization->NumScoreColumns(L)` outputs.
+  LabelerImpl(const LabelerOptions& options,
+              std::shared_ptr<BackboneImpl> backbone,
+              std::shared_ptr<NormalizationImpl> normalization);
+
+  /// `points`: `B x N x 3` float (zero points = missing). Returns scores,
+  /// A', label confidences and label ids (LabelerOutput); the attention
+  /// weights (`B x k x h x N x N`) only when `return_attention` is true and
+  /// the backbone has attention.
+  LabelerOutput forward(const torch::Tensor& points,
+                        bool return_attention = false);
+
+  const LabelerOptions& options() const { return options_; }
+  int64_t num_labels() const { return options_.num_labels; }
+
+  PointEncoder encoder{nullptr};
+  Backbone backbone{nullptr};
+  ScoreHead head{nullptr};
+  Normalization normalization{nullptr};
+
+ private:
+  LabelerOptions options_;
+};
+TORCH_MODULE(Labeler);
+
+/// A labeler architecture decoded from the `model` config group; the label
+/// count and the normalization are supplied when it is built. Registry kind
+/// "model" (configs/model/).
+class ModelSpec {
+ public:
+  static constexpr std::string_view kRegistryName = "model";
+  virtual ~ModelSpec() = default;
+  /// A freshly initialised labeler for `num_labels` labels.
+  virtual Labeler Build(int64_t num_labels,
+                        Normalization normalization) const = 0;
+};
+
+/// Builds the labeler selected by `model` (a `model` group node, `name:
+/// soma`) with the normalization selected by `normalization` (`name:
+/// sinkhorn` or `log_softmax`) for `num_labels` labels. ConfigError on
+/// invalid options. Parameters are initialised from torch's global RNG (seed
+/// it with torch::manual_seed for reproducibility).
+Labeler BuildLabeler(const ConfigNode& model,
+                     const ConfigNode& normalization,
+                     int64_t num_labels);
+Labeler BuildLabeler(const ConfigNode& model,
+                     const ConfigNode& normalization,
+                     int64_t num_labels,
+                     BuildContext& ctx);
+
+/// Number of trainable parameter elements (requires_grad) of `module`.
+int64_t CountTrainableParameters(const torch::nn::Module& module);
+
+}  // namespace soma

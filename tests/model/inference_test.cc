@@ -1,0 +1,173 @@
+// Per-frame inference: the duplicate-label rule (REFERENCE 5.4), the random
+// per-frame permutation and its inversion (REFERENCE 5.3), batching.
+#include "framework/model/inference.h"
+
+#include "framework/config/node.h"
+#include "framework/core/error.h"
+#include "framework/model/labeler.h"
+
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <vector>
+
+namespace soma {
+namespace {
+
+Labeler SmallModel(int64_t num_labels) {
+  torch::manual_seed(41);
+  LabelerOptions options;
+  options.num_labels = num_labels;
+  options.d_model = 16;
+  options.hidden = 16;
+  SelfAttentionOptions attention;
+  attention.d_model = 16;
+  attention.num_layers = 2;
+  attention.num_heads = 4;
+  Labeler model(options, SelfAttention(attention).ptr(), Sinkhorn().ptr());
+  model->eval();
+  return model;
+}
+
+torch::Tensor Points(int64_t frames, int64_t p) {
+  torch::manual_seed(42);
+  torch::Tensor points = torch::randn({frames, p, 3});
+  points.narrow(1, p - 2, 2).zero_();  // padding
+  return points;
+}
+
+TEST(ResolveDuplicateLabels, AllClaimantsOfARealLabelBecomeNull) {
+  const int64_t l = 4;  // null = 4
+  const torch::Tensor ids = torch::tensor({0,
+                                           1,
+                                           1,
+                                           4,
+                                           2,
+                                           2,
+                                           2,
+                                           3,  //
+                                           3,
+                                           0,
+                                           1,
+                                           2,
+                                           4,
+                                           4,
+                                           0,
+                                           1},
+                                          torch::kLong)
+                                .view({2, 8});
+  torch::Tensor valid = torch::ones({2, 8}, torch::kBool);
+  valid[1][6] = false;  // a zero point claiming label 0 does not count...
+  valid[1][7] = false;  // ...and is reported as null itself
+  const torch::Tensor expected = torch::tensor({0,
+                                                4,
+                                                4,
+                                                4,
+                                                4,
+                                                4,
+                                                4,
+                                                3,  //
+                                                3,
+                                                0,
+                                                1,
+                                                2,
+                                                4,
+                                                4,
+                                                4,
+                                                4},
+                                               torch::kLong)
+                                     .view({2, 8});
+  EXPECT_TRUE(torch::equal(ResolveDuplicateLabels(ids, valid, l), expected));
+  // Null is never a "duplicate" to resolve.
+  const torch::Tensor nulls = torch::full({1, 3}, l, torch::kLong);
+  EXPECT_TRUE(torch::equal(
+      ResolveDuplicateLabels(nulls, torch::ones({1, 3}, torch::kBool), l),
+      nulls));
+  EXPECT_THROW(
+      ResolveDuplicateLabels(ids, torch::ones({2, 7}, torch::kBool), l),
+      ShapeError);
+}
+
+TEST(FrameLabeler, OutputsAreInInputOrderWhateverThePermutation) {
+  Labeler model = SmallModel(6);
+  const torch::Tensor points = Points(9, 11);
+  for (bool fast : {true, false}) {
+    SCOPED_TRACE(fast ? "fast path" : "torch path");
+    InferenceOptions plain;
+    plain.permute = false;
+    plain.use_fast_path = fast;
+    const FrameLabels reference =
+        FrameLabeler(model.ptr(), plain).Label(points);
+    EXPECT_EQ(FrameLabeler(model.ptr(), plain).uses_fast_path(), fast);
+    for (uint64_t seed : {1u, 2u}) {
+      InferenceOptions permuted = plain;
+      permuted.permute = true;
+      permuted.seed = seed;
+      permuted.batch_size = 4;  // batches of 4, 4, 1
+      const FrameLabels labels =
+          FrameLabeler(model.ptr(), permuted).Label(points);
+      EXPECT_TRUE(torch::allclose(
+          labels.label_confidence, reference.label_confidence, 1e-4, 1e-5));
+      EXPECT_TRUE(torch::equal(labels.predicted_ids, reference.predicted_ids));
+      EXPECT_TRUE(torch::equal(labels.label_ids, reference.label_ids));
+    }
+  }
+}
+
+TEST(FrameLabeler, PermutingInputPointsPermutesOutputs) {
+  // The network is permutation equivariant (no positional encoding, median
+  // centring is order-free): a random model must map permuted inputs to
+  // permuted outputs.
+  Labeler model = SmallModel(5);
+  const torch::Tensor points = Points(4, 10);
+  const torch::Tensor perm = torch::randperm(10, torch::kLong);
+  InferenceOptions options;
+  options.seed = 7;
+  const FrameLabeler labeler(model.ptr(), options);
+  const FrameLabels a = labeler.Label(points);
+  const FrameLabels b = labeler.Label(points.index_select(1, perm));
+  EXPECT_TRUE(torch::allclose(b.label_confidence,
+                              a.label_confidence.index_select(1, perm),
+                              1e-4,
+                              1e-5));
+  EXPECT_TRUE(torch::equal(b.label_ids, a.label_ids.index_select(1, perm)));
+}
+
+TEST(FrameLabeler, LabelsFollowTheDuplicateRuleAndZeroPointsAreNull) {
+  Labeler model = SmallModel(3);
+  const torch::Tensor points = Points(6, 12);
+  const FrameLabels labels = FrameLabeler(model.ptr()).Label(points);
+  EXPECT_EQ(labels.label_ids.sizes(), (std::vector<int64_t>{6, 12}));
+  EXPECT_EQ(labels.label_confidence.sizes(), (std::vector<int64_t>{6, 12, 4}));
+  EXPECT_TRUE(
+      torch::equal(labels.predicted_ids, labels.label_confidence.argmax(-1)));
+  EXPECT_TRUE(torch::equal(
+      labels.label_ids,
+      ResolveDuplicateLabels(labels.predicted_ids, points.ne(0).any(-1), 3)));
+  EXPECT_TRUE(labels.label_ids.narrow(1, 10, 2).eq(3).all().item<bool>());
+  // Every real label appears at most once per frame.
+  for (int64_t t = 0; t < 6; ++t) {
+    for (int64_t label = 0; label < 3; ++label) {
+      EXPECT_LE(labels.label_ids[t].eq(label).sum().item<int64_t>(), 1);
+    }
+  }
+}
+
+TEST(FrameLabeler, OptionsAndShapes) {
+  ConfigNode node = ConfigNode::EmptyMap();
+  node.Set("batch_size", ConfigNode(30));
+  node.Set("seed", ConfigNode(5));
+  const InferenceOptions options = DecodeInferenceOptions(node);
+  EXPECT_EQ(options.batch_size, 30);
+  EXPECT_EQ(options.seed, 5u);
+  EXPECT_TRUE(options.permute);
+  node.Set("batch_size", ConfigNode(0));
+  EXPECT_THROW(DecodeInferenceOptions(node), ConfigError);
+  Labeler model = SmallModel(3);
+  const FrameLabeler labeler(model.ptr());
+  EXPECT_THROW(labeler.Label(torch::zeros({2, 3})), ShapeError);
+  EXPECT_EQ(labeler.Label(torch::zeros({0, 4, 3})).label_ids.size(0), 0);
+}
+
+}  // namespace
+}  // namespace soma
