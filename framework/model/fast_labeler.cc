@@ -9,6 +9,7 @@
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <mutex>
 #include <utility>
@@ -573,16 +574,22 @@ LabelerOutput FastLabeler::Forward(const at::Tensor& points_in) const {
   for (auto& w : workspaces) ws.push_back(w.get());
   try {
     if (threads == 1 || batch >= threads) {
-      // Frames split over threads; each thread runs blocks of frames.
+      // Frames in blocks of at most frames_per_block (the block count a
+      // multiple of the thread count, sizes balanced); threads take blocks
+      // from a shared counter, so a thread slowed down by other processes
+      // takes fewer blocks.
+      const int64_t per_block = m.options.frames_per_block;
+      int64_t blocks = (batch + per_block - 1) / per_block;
+      blocks = (blocks + threads - 1) / threads * threads;
+      blocks = std::min<int64_t>(blocks, batch);
+      std::atomic<int64_t> next{0};
       at::parallel_for(0, threads, 1, [&](int64_t begin, int64_t end) {
         for (int64_t t = begin; t < end; ++t) {
-          const int64_t first = batch * t / threads;
-          const int64_t last = batch * (t + 1) / threads;
-          for (int64_t f = first; f < last; f += m.options.frames_per_block) {
+          for (int64_t b = next++; b < blocks; b = next++) {
             m.RunFrames(p,
                         n,
-                        f,
-                        std::min<int64_t>(last, f + m.options.frames_per_block),
+                        batch * b / blocks,
+                        batch * (b + 1) / blocks,
                         /*parallel=*/false,
                         &ws[static_cast<size_t>(t)],
                         1,

@@ -9,17 +9,20 @@
 //   conv1(cat[merge(o), x]) = (W1a Wm) o + W1b x + (W1a bm + b1), so each
 //   attention layer is three GEMMs (qkv, [o|x] -> 2D, 2D -> D) plus the
 //   heads, with bias, ReLU and residual fused into the GEMM epilogue;
-// - conv + shortcut pairs reading the same input are one GEMM, and the
-//   second conv of a ResConv1DBlock and its shortcut sum are one GEMM over
-//   a concatenated input;
+// - a ResConv1DBlock is two GEMMs: [conv1; shortcut conv] on the shared
+//   input, then conv2 with the shortcut output added in the epilogue;
+// - attention heads use the same micro-kernel (keys packed per head, values
+//   read in place) with the softmax normalisation applied to P v;
 // - the 1/sqrt(D) score scaling is folded into the classifier;
 // - the GEMMs run on a register-tiled AVX-512 micro-kernel against packed
 //   weights (portable fallback elsewhere), on point-major activations kept in
 //   reused, aligned buffers (no allocation per call after the first);
 // - Sinkhorn runs per frame in double precision in scaling form (a matrix-
 //   vector product per half-iteration instead of log-sum-exps);
-// - frames are split across torch's intra-op threads (at::parallel_for);
-//   with fewer frames than threads, GEMM panels and attention heads are.
+// - frames are split across torch's intra-op threads (at::parallel_for;
+//   fast_labeler.cc is compiled with OpenMP, libtorch's backend) in blocks of
+//   frames_per_block taken from a shared counter; with fewer frames than
+//   threads, GEMM panels, attention heads and frames are split instead.
 // Results match LabelerImpl::forward in eval mode to ~1e-5 (tested to 1e-4).
 // The snapshot does not follow later weight updates: rebuild after training.
 #pragma once
