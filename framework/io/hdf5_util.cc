@@ -1,0 +1,185 @@
+#include "framework/io/hdf5_util.h"
+
+#include "framework/core/error.h"
+
+#include <fmt/format.h>
+
+#include <cstring>
+
+namespace soma::hdf5 {
+
+std::recursive_mutex& Hdf5Mutex() {
+  static std::recursive_mutex mutex;
+  static std::once_flag once;
+  std::call_once(once, [] { H5Eset_auto2(H5E_DEFAULT, nullptr, nullptr); });
+  return mutex;
+}
+
+Hid Check(hid_t id, Hid::Closer closer, const std::string& what) {
+  if (id < 0) throw IoError(what);
+  return Hid(id, closer);
+}
+
+void CheckStatus(herr_t status, const std::string& what) {
+  if (status < 0) throw IoError(what);
+}
+
+Hid VlenStringType() {
+  std::lock_guard lock(Hdf5Mutex());
+  Hid type = Check(H5Tcopy(H5T_C_S1), H5Tclose, "H5Tcopy failed");
+  CheckStatus(H5Tset_size(type.get(), H5T_VARIABLE), "H5Tset_size failed");
+  CheckStatus(H5Tset_cset(type.get(), H5T_CSET_UTF8), "H5Tset_cset failed");
+  return type;
+}
+
+std::string InvalidFilePrefix(const std::string& file,
+                              const std::string& format) {
+  return fmt::format("{}: not a valid {}: ", file, format);
+}
+
+// ---- Writing attributes.
+
+void WriteAttribute(hid_t object,
+                    const char* name,
+                    hid_t mem_type,
+                    hid_t file_type,
+                    const void* value,
+                    const std::string& file) {
+  std::lock_guard lock(Hdf5Mutex());
+  const Hid space = Check(H5Screate(H5S_SCALAR), H5Sclose, file);
+  if (H5Aexists(object, name) > 0) H5Adelete(object, name);
+  const Hid attr =
+      Check(H5Acreate2(
+                object, name, file_type, space.get(), H5P_DEFAULT, H5P_DEFAULT),
+            H5Aclose,
+            fmt::format("{}: cannot create attribute '{}'", file, name));
+  CheckStatus(H5Awrite(attr.get(), mem_type, value),
+              fmt::format("{}: cannot write attribute '{}'", file, name));
+}
+
+void WriteStringAttribute(hid_t object,
+                          const std::string& name,
+                          const std::string& value,
+                          const std::string& file) {
+  std::lock_guard lock(Hdf5Mutex());
+  const Hid type = VlenStringType();
+  const char* data = value.c_str();
+  WriteAttribute(object, name.c_str(), type.get(), type.get(), &data, file);
+}
+
+void WriteStringArrayAttribute(hid_t object,
+                               const char* name,
+                               const std::vector<std::string>& values,
+                               const std::string& file) {
+  std::lock_guard lock(Hdf5Mutex());
+  const Hid type = VlenStringType();
+  const hsize_t dims[1] = {values.size()};
+  const Hid space = Check(H5Screate_simple(1, dims, nullptr), H5Sclose, file);
+  if (H5Aexists(object, name) > 0) H5Adelete(object, name);
+  const Hid attr = Check(
+      H5Acreate2(
+          object, name, type.get(), space.get(), H5P_DEFAULT, H5P_DEFAULT),
+      H5Aclose,
+      fmt::format("{}: cannot create attribute '{}'", file, name));
+  std::vector<const char*> pointers;
+  pointers.reserve(values.size());
+  for (const std::string& value : values) pointers.push_back(value.c_str());
+  if (!values.empty()) {
+    CheckStatus(H5Awrite(attr.get(), type.get(), pointers.data()),
+                fmt::format("{}: cannot write attribute '{}'", file, name));
+  }
+}
+
+// ---- Reading attributes.
+
+Hid OpenAttribute(hid_t object, const char* name, const std::string& bad) {
+  std::lock_guard lock(Hdf5Mutex());
+  if (H5Aexists(object, name) <= 0) {
+    throw IoError(bad + fmt::format("missing attribute '{}'", name));
+  }
+  return Check(H5Aopen(object, name, H5P_DEFAULT),
+               H5Aclose,
+               bad + fmt::format("cannot open attribute '{}'", name));
+}
+
+std::vector<std::string> ReadStrings(hid_t attr,
+                                     const std::string& name,
+                                     const std::string& bad) {
+  std::lock_guard lock(Hdf5Mutex());
+  const std::string cannot_read =
+      bad + fmt::format("cannot read attribute '{}'", name);
+  const Hid type = Check(H5Aget_type(attr), H5Tclose, cannot_read);
+  if (H5Tget_class(type.get()) != H5T_STRING) {
+    throw IoError(bad + fmt::format("attribute '{}' is not a string", name));
+  }
+  const Hid space = Check(H5Aget_space(attr), H5Sclose, cannot_read);
+  const int rank = H5Sget_simple_extent_ndims(space.get());
+  if (rank > 1 || rank < 0) {
+    throw IoError(bad + fmt::format("attribute '{}' has rank {}, expected a "
+                                    "scalar or 1-D string array",
+                                    name,
+                                    rank));
+  }
+  const hssize_t count = H5Sget_simple_extent_npoints(space.get());
+  std::vector<std::string> values;
+  if (count <= 0) return values;
+  if (H5Tis_variable_str(type.get()) > 0) {
+    const Hid mem = VlenStringType();
+    H5Tset_cset(mem.get(), H5Tget_cset(type.get()));
+    std::vector<char*> pointers(static_cast<size_t>(count), nullptr);
+    CheckStatus(H5Aread(attr, mem.get(), pointers.data()), cannot_read);
+    for (char* p : pointers) values.emplace_back(p == nullptr ? "" : p);
+    H5Dvlen_reclaim(mem.get(), space.get(), H5P_DEFAULT, pointers.data());
+  } else {
+    const size_t size = H5Tget_size(type.get());
+    std::vector<char> buffer(size * static_cast<size_t>(count));
+    CheckStatus(H5Aread(attr, type.get(), buffer.data()), cannot_read);
+    for (hssize_t i = 0; i < count; ++i) {
+      const char* begin = buffer.data() + i * size;
+      values.emplace_back(begin, strnlen(begin, size));
+    }
+  }
+  return values;
+}
+
+std::string ReadStringAttribute(hid_t object,
+                                const char* name,
+                                const std::string& bad) {
+  std::lock_guard lock(Hdf5Mutex());
+  const Hid attr = OpenAttribute(object, name, bad);
+  std::vector<std::string> values = ReadStrings(attr.get(), name, bad);
+  if (values.size() != 1) {
+    throw IoError(bad +
+                  fmt::format("attribute '{}' is not a single string", name));
+  }
+  return values[0];
+}
+
+std::vector<std::string> ReadStringArrayAttribute(hid_t object,
+                                                  const char* name,
+                                                  const std::string& bad) {
+  std::lock_guard lock(Hdf5Mutex());
+  const Hid attr = OpenAttribute(object, name, bad);
+  return ReadStrings(attr.get(), name, bad);
+}
+
+void ReadNumberAttribute(hid_t object,
+                         const char* name,
+                         hid_t mem_type,
+                         void* value,
+                         const std::string& bad) {
+  std::lock_guard lock(Hdf5Mutex());
+  const Hid attr = OpenAttribute(object, name, bad);
+  const std::string cannot_read =
+      bad + fmt::format("cannot read attribute '{}'", name);
+  const Hid type = Check(H5Aget_type(attr.get()), H5Tclose, cannot_read);
+  const H5T_class_t type_class = H5Tget_class(type.get());
+  const Hid space = Check(H5Aget_space(attr.get()), H5Sclose, cannot_read);
+  if ((type_class != H5T_INTEGER && type_class != H5T_FLOAT) ||
+      H5Sget_simple_extent_npoints(space.get()) != 1) {
+    throw IoError(bad + fmt::format("attribute '{}' is not a number", name));
+  }
+  CheckStatus(H5Aread(attr.get(), mem_type, value), cannot_read);
+}
+
+}  // namespace soma::hdf5
