@@ -54,4 +54,59 @@ std::unique_ptr<MotionSource> BuildMotionSource(const ConfigNode& cfg,
   return Instantiate<MotionSource>(Require(cfg, "motion"), ctx);
 }
 
+NoisePipeline BuildNoise(const ConfigNode& cfg, BuildContext& ctx) {
+  const ConfigNode* node = cfg.Find("noise");
+  NoisePipeline noise =
+      node == nullptr ? NoisePipeline() : BuildNoisePipeline(*node, ctx);
+  SOMA_LOG(INFO,
+           "noise: {} ({} ghost slots)",
+           noise.Describe(),
+           noise.num_ghost_slots());
+  return noise;
+}
+
+Synthesizer BuildSynthesizer(const ConfigNode& cfg,
+                             Split split,
+                             BuildContext& ctx) {
+  const ConfigNode* synth = cfg.Find("synth");
+  const SynthesisOptions options =
+      synth == nullptr ? SynthesisOptions() : DecodeSynthesisOptions(*synth);
+  const BodyModel body = BuildBody(cfg, ctx);
+  std::vector<MarkerLayout> layouts;
+  if (options.layouts.empty()) {
+    layouts.push_back(BuildLayout(cfg, body, ctx));
+  } else {
+    for (const std::string& name : options.layouts) {
+      const bool is_file =
+          name.size() > 5 && name.compare(name.size() - 5, 5, ".json") == 0;
+      layouts.push_back(is_file ? LoadMarkerLayoutForBody(name, body)
+                                : MakeBuiltinLayout(body, name));
+    }
+  }
+  Timer timer;
+  Rng rng = Rng(ctx.seed()).Stream("motion");
+  std::vector<PoseSequence> clips =
+      BuildMotionSource(cfg, ctx)->Load(body, split, options.frame_rate, rng);
+  int64_t frames = 0;
+  for (const PoseSequence& clip : clips) frames += clip.num_frames();
+  SOMA_LOG(INFO,
+           "motion ({}): {} clips, {} frames at {} Hz ({:.1f}s)",
+           ToString(split),
+           clips.size(),
+           frames,
+           options.frame_rate,
+           timer.ElapsedSeconds());
+  NoisePipeline noise = BuildNoise(cfg, ctx);
+  Synthesizer synthesizer(
+      body, std::move(layouts), std::move(clips), std::move(noise), options);
+  SOMA_LOG(INFO,
+           "synthesizer: {} layout(s), superset L = {}, N = {} points, {} "
+           "candidate marker positions",
+           synthesizer.num_layouts(),
+           synthesizer.num_labels(),
+           synthesizer.num_points(),
+           synthesizer.num_candidate_markers());
+  return synthesizer;
+}
+
 }  // namespace soma

@@ -7,6 +7,8 @@
 #include "framework/config/node.h"
 #include "framework/motion/motion_source.h"
 #include "framework/registry/registry.h"
+#include "framework/synth/noise.h"
+#include "framework/synth/synthesizer.h"
 
 #include <memory>
 
@@ -21,5 +23,18 @@ MarkerLayout BuildLayout(const ConfigNode& cfg,
 /// `cfg.motion`.
 std::unique_ptr<MotionSource> BuildMotionSource(const ConfigNode& cfg,
                                                 BuildContext& ctx);
+
+/// `cfg.noise` ({modules: [...]}); no `noise` node = no noise.
+NoisePipeline BuildNoise(const ConfigNode& cfg, BuildContext& ctx);
+
+/// The synthesizer of a task config: `cfg.body`; the training layouts
+/// (`cfg.synth.layouts`: built-in names or layout JSON paths, or else
+/// `cfg.layout`); the clips of `split` from `cfg.motion` resampled to
+/// `cfg.synth.frame_rate` (random choices from Rng(ctx.seed()).Stream
+/// ("motion")); the noise pipeline `cfg.noise`; the options `cfg.synth`
+/// (defaults if absent).
+Synthesizer BuildSynthesizer(const ConfigNode& cfg,
+                             Split split,
+                             BuildContext& ctx);
 
 }  // namespace soma

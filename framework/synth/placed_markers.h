@@ -1,0 +1,76 @@
+// Virtual markers with a per-block choice among candidate vertices
+// (REFERENCE.md 3.3, randomised placement): the same arithmetic as
+// VirtualMarkerSampler (marker = v + n * d, LBS in float32 after forward
+// kinematics in double, normal = normalised sum of the incident faces' cross
+// products), precomputed once for the union of all labels' candidate
+// vertices, but each frame shapes and skins only the vertices of the chosen
+// candidates (and their 1-rings), so randomised placement costs about as much
+// as a fixed layout.
+#pragma once
+
+#include "framework/body/body_model.h"
+
+#include <Eigen/Core>
+
+#include <vector>
+
+namespace soma::internal {
+
+class PlacedMarkerSampler {
+ public:
+  /// Candidate c is vertex `vertex_ids[c]` with skin distance
+  /// `distances[c]`. ShapeError on bad ids or sizes.
+  PlacedMarkerSampler(const BodyModel& body,
+                      const std::vector<int>& vertex_ids,
+                      const std::vector<double>& distances);
+
+  int num_candidates() const {
+    return static_cast<int>(candidate_local_.size());
+  }
+
+  /// The local vertices a selection of candidates needs (computed once per
+  /// placement block).
+  struct Selection {
+    std::vector<int> candidates;  // M chosen candidate indices
+    std::vector<int> active;      // local vertices to pose, ascending
+  };
+  void Select(const std::vector<int>& candidates, Selection* selection) const;
+
+  struct Workspace {
+    Eigen::Matrix3Xd rest_joints;
+    std::vector<Eigen::Matrix3d> global_rotation;
+    std::vector<Eigen::Vector3d> global_translation;
+    std::vector<Eigen::Vector4f> rows;  // 3 per joint
+    Eigen::VectorXf pose_features;
+    std::vector<float> posed;  // 3 per local vertex (only active ones set)
+    std::vector<float> betas;
+    std::vector<int> stamp;  // Select() scratch
+  };
+
+  /// Positions of the selected candidates' markers (3 x M floats, world,
+  /// metres) into `out` (size 3 M).
+  void Sample(const Eigen::VectorXd& betas,
+              const BodyPose& pose,
+              const Selection& selection,
+              Workspace* workspace,
+              float* out) const;
+
+ private:
+  int num_joints_ = 0;
+  int num_betas_ = 0;
+  int num_local_ = 0;
+  std::vector<int> parents_;
+  std::vector<int> candidate_local_;     // local index of each candidate vertex
+  std::vector<float> distances_;         // per candidate
+  std::vector<int> ring_offsets_;        // per candidate, into ring_pairs_
+  std::vector<int> ring_pairs_;          // local (b, c) with (a, b, c) CCW
+  std::vector<float> template_;          // 4 per local vertex (x, y, z, 1)
+  std::vector<float> shape_dirs_;        // local x B x 4 (4th = 0)
+  Eigen::MatrixXf pose_dirs_;            // 4 local x 9 (J - 1), empty if none
+  std::vector<int> influence_joint_;     // 4 per local vertex
+  std::vector<float> influence_weight_;  // 4 per local vertex (0-padded)
+  Eigen::Matrix3Xd joint_template_;      // 3 x J
+  Eigen::MatrixXd joint_shape_dirs_;     // 3J x B
+};
+
+}  // namespace soma::internal
