@@ -1,0 +1,829 @@
+#include "framework/train/trainer.h"
+
+#include "framework/config/decode.h"
+#include "framework/config/yaml_io.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+#include "framework/core/logging.h"
+#include "framework/core/progress.h"
+#include "framework/core/random.h"
+#include "framework/core/timer.h"
+#include "framework/model/inference.h"
+#include "framework/model/loss.h"
+#include "framework/registry/registry.h"
+#include "framework/train/batch_source.h"
+#include "framework/train/metrics.h"
+#include "framework/train/optimizer.h"
+
+#include <ATen/CPUGeneratorImpl.h>
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <torch/torch.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <limits>
+#include <mutex>
+#include <sstream>
+
+namespace soma {
+namespace {
+
+constexpr std::string_view kCheckpointFormat = "soma-checkpoint";
+constexpr int64_t kCheckpointVersion = 1;
+
+std::string JoinLines(const std::vector<std::string>& items) {
+  std::string out;
+  for (const std::string& item : items) {
+    out += item;
+    out += '\n';
+  }
+  return out;
+}
+
+std::vector<std::string> SplitLines(const std::string& text) {
+  std::vector<std::string> out;
+  size_t pos = 0;
+  while (pos < text.size()) {
+    size_t end = text.find('\n', pos);
+    if (end == std::string::npos) end = text.size();
+    out.push_back(text.substr(pos, end - pos));
+    pos = end + 1;
+  }
+  return out;
+}
+
+std::string ReadString(torch::serialize::InputArchive& archive,
+                       const std::string& key,
+                       const std::filesystem::path& path) {
+  c10::IValue value;
+  if (!archive.try_read(key, value) || !value.isString()) {
+    throw IoError(fmt::format(
+        "{}: not a soma checkpoint (missing '{}')", path.string(), key));
+  }
+  return value.toStringRef();
+}
+
+int64_t ReadInt(torch::serialize::InputArchive& archive,
+                const std::string& key,
+                const std::filesystem::path& path) {
+  c10::IValue value;
+  if (!archive.try_read(key, value) || !value.isInt()) {
+    throw IoError(fmt::format(
+        "{}: not a soma checkpoint (missing '{}')", path.string(), key));
+  }
+  return value.toInt();
+}
+
+double ReadDouble(torch::serialize::InputArchive& archive,
+                  const std::string& key,
+                  const std::filesystem::path& path) {
+  c10::IValue value;
+  if (!archive.try_read(key, value) || !value.isDouble()) {
+    throw IoError(fmt::format(
+        "{}: not a soma checkpoint (missing '{}')", path.string(), key));
+  }
+  return value.toDouble();
+}
+
+torch::serialize::InputArchive OpenCheckpoint(
+    const std::filesystem::path& path) {
+  if (!std::filesystem::is_regular_file(path)) {
+    throw IoError(fmt::format("checkpoint {} does not exist", path.string()));
+  }
+  torch::serialize::InputArchive archive;
+  try {
+    archive.load_from(path.string());
+  } catch (const c10::Error& e) {
+    throw IoError(fmt::format("{}: cannot read checkpoint ({})",
+                              path.string(),
+                              e.what_without_backtrace()));
+  }
+  if (ReadString(archive, "meta_format", path) != kCheckpointFormat) {
+    throw IoError(fmt::format("{}: not a soma checkpoint", path.string()));
+  }
+  const int64_t version = ReadInt(archive, "meta_version", path);
+  if (version != kCheckpointVersion) {
+    throw IoError(fmt::format("{}: checkpoint version {} (expected {})",
+                              path.string(),
+                              version,
+                              kCheckpointVersion));
+  }
+  return archive;
+}
+
+CheckpointInfo ReadInfo(torch::serialize::InputArchive& archive,
+                        const std::filesystem::path& path) {
+  CheckpointInfo info;
+  info.epoch = static_cast<int>(ReadInt(archive, "meta_epoch", path));
+  info.step = ReadInt(archive, "meta_step", path);
+  info.lr = ReadDouble(archive, "meta_lr", path);
+  info.model_config = ParseYaml(ReadString(archive, "meta_model_config", path),
+                                path.string() + ":model_config");
+  info.labels = SplitLines(ReadString(archive, "meta_labels", path));
+  info.config_yaml = ReadString(archive, "meta_config", path);
+  info.metrics_csv = ReadString(archive, "meta_metrics_csv", path);
+  info.finished = ReadInt(archive, "meta_finished", path) != 0;
+  return info;
+}
+
+/// The first key path where `a` (checkpoint) and `b` (config) differ; ""
+/// if equal. `*va`, `*vb` describe the two values.
+std::string FirstDifference(const ConfigNode& a,
+                            const ConfigNode& b,
+                            const std::string& path,
+                            std::string* va,
+                            std::string* vb) {
+  auto child_path = [&](const std::string& key) {
+    return path.empty() ? key : path + "." + key;
+  };
+  if (a.IsMap() && b.IsMap()) {
+    for (const auto& [key, child] : a.entries()) {
+      const ConfigNode* other = b.Find(key);
+      if (other == nullptr) {
+        *va = child.Describe();
+        *vb = "<absent>";
+        return child_path(key);
+      }
+      std::string diff =
+          FirstDifference(child, *other, child_path(key), va, vb);
+      if (!diff.empty()) return diff;
+    }
+    for (const auto& [key, child] : b.entries()) {
+      if (a.Find(key) == nullptr) {
+        *va = "<absent>";
+        *vb = child.Describe();
+        return child_path(key);
+      }
+    }
+    return "";
+  }
+  if (a.IsList() && b.IsList() && a.size() == b.size()) {
+    for (size_t i = 0; i < a.size(); ++i) {
+      std::string diff = FirstDifference(
+          a.at(i), b.at(i), fmt::format("{}[{}]", path, i), va, vb);
+      if (!diff.empty()) return diff;
+    }
+    return "";
+  }
+  if (a.IsScalar() && b.IsScalar() && DumpFlow(a) == DumpFlow(b)) return "";
+  *va = a.Describe();
+  *vb = b.Describe();
+  return path.empty() ? "<root>" : path;
+}
+
+struct Tensors {
+  torch::Tensor points;  // B x N x 3 float
+  torch::Tensor labels;  // B x N int64
+};
+
+Tensors ToTensors(const LabeledFrames& frames) {
+  const int64_t b = frames.num_frames();
+  const int64_t n = frames.num_points;
+  Tensors t;
+  t.points =
+      torch::from_blob(
+          const_cast<float*>(frames.points.data()), {b, n, 3}, torch::kFloat)
+          .clone();
+  t.labels =
+      torch::from_blob(
+          const_cast<int16_t*>(frames.labels.data()), {b, n}, torch::kShort)
+          .to(torch::kLong);
+  return t;
+}
+
+std::string CsvDouble(double value) { return fmt::format("{}", value); }
+
+std::vector<BatchRequest> PlanBatches(int epoch,
+                                      int64_t num_batches,
+                                      int64_t batch_size) {
+  std::vector<BatchRequest> requests;
+  requests.reserve(static_cast<size_t>(num_batches));
+  for (int64_t b = 0; b < num_batches; ++b) {
+    requests.push_back(BatchRequest{epoch, b * batch_size, batch_size});
+  }
+  return requests;
+}
+
+std::vector<EpochMetrics> ParseMetricsCsv(const std::string& csv) {
+  std::vector<EpochMetrics> rows;
+  const std::vector<std::string> lines = SplitLines(csv);
+  for (size_t i = 1; i < lines.size(); ++i) {  // skip the header
+    if (lines[i].empty()) continue;
+    std::vector<double> v;
+    std::stringstream stream(lines[i]);
+    std::string cell;
+    while (std::getline(stream, cell, ',')) {
+      v.push_back(std::strtod(cell.c_str(), nullptr));
+    }
+    if (v.size() != 11) {
+      throw IoError(fmt::format(
+          "checkpoint metrics row '{}' has {} columns", lines[i], v.size()));
+    }
+    EpochMetrics m;
+    m.epoch = static_cast<int>(v[0]);
+    m.step = static_cast<int64_t>(v[1]);
+    m.train_loss = v[2];
+    m.val_loss = v[3];
+    m.val_acc = v[4];
+    m.val_f1 = v[5];
+    m.val_acc_frame = v[6];
+    m.val_f1_frame = v[7];
+    m.lr = v[8];
+    m.wall_s = v[9];
+    m.frames_per_s = v[10];
+    rows.push_back(m);
+  }
+  return rows;
+}
+
+std::string MetricsCsv(const std::vector<EpochMetrics>& history) {
+  std::string csv = MetricsCsvHeader() + "\n";
+  for (const EpochMetrics& m : history) csv += MetricsCsvRow(m) + "\n";
+  return csv;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+// Options
+
+void TrainerOptions::Validate() const {
+  auto fail = [](std::string_view key, auto value, std::string_view what) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. train.{} = {}. Violated constraint: {}",
+        key,
+        value,
+        what));
+  };
+  if (batch_size < 1) fail("batch_size", batch_size, "batch_size >= 1");
+  if (val_batch_size < 0) {
+    fail("val_batch_size", val_batch_size, "val_batch_size >= 0");
+  }
+  if (max_epochs < 0) fail("max_epochs", max_epochs, "max_epochs >= 0");
+  if (train_frames < 1) fail("train_frames", train_frames, "train_frames >= 1");
+  if (val_frames < 1) fail("val_frames", val_frames, "val_frames >= 1");
+  if (synth_data != "pool" && synth_data != "stream") {
+    fail("synth_data", synth_data, "synth_data is pool or stream");
+  }
+  if (data_threads < 1) fail("data_threads", data_threads, "data_threads >= 1");
+  if (prefetch < 0) fail("prefetch", prefetch, "prefetch >= 0");
+  early_stopping.Validate();
+}
+
+TrainerOptions DecodeTrainerOptions(const ConfigNode& node) {
+  ConfigReader reader(node);
+  TrainerOptions options;
+  reader.Read("batch_size", &options.batch_size);
+  reader.Read("val_batch_size", &options.val_batch_size);
+  reader.Read("max_epochs", &options.max_epochs);
+  reader.Read("train_frames", &options.train_frames);
+  reader.Read("val_frames", &options.val_frames);
+  reader.Read("synth_data", &options.synth_data);
+  reader.Read("data_threads", &options.data_threads);
+  reader.Read("prefetch", &options.prefetch);
+  reader.Read("progress", &options.progress);
+  if (const ConfigNode* resume = reader.Child("resume");
+      resume != nullptr && !resume->IsNull()) {
+    if (resume->IsBool()) {
+      options.resume = resume->AsBool() ? "auto" : "never";
+    } else {
+      options.resume = resume->AsString();
+    }
+  }
+  if (const ConfigNode* init = reader.Child("init_from");
+      init != nullptr && !init->IsNull()) {
+    options.init_from = init->AsString();
+  }
+  if (const ConfigNode* es = reader.Child("early_stopping"); es != nullptr) {
+    options.early_stopping = DecodeEarlyStoppingOptions(*es);
+  }
+  reader.Check("batch_size", options.batch_size >= 1, "batch_size >= 1");
+  reader.Check(
+      "val_batch_size", options.val_batch_size >= 0, "val_batch_size >= 0");
+  reader.Check("max_epochs", options.max_epochs >= 0, "max_epochs >= 0");
+  reader.Check("train_frames", options.train_frames >= 1, "train_frames >= 1");
+  reader.Check("val_frames", options.val_frames >= 1, "val_frames >= 1");
+  reader.Check("synth_data",
+               options.synth_data == "pool" || options.synth_data == "stream",
+               "synth_data is pool or stream");
+  reader.Check("data_threads", options.data_threads >= 1, "data_threads >= 1");
+  reader.Check("prefetch", options.prefetch >= 0, "prefetch >= 0");
+  reader.Finish();
+  return options;
+}
+
+void RegisterTrainerConfigGroup() {
+  RegisterConfigGroup(
+      "train", "trainer", [](const ConfigNode& node, BuildContext&) {
+        DecodeTrainerOptions(node).Validate();
+      });
+}
+
+// ---------------------------------------------------------------------------
+// Metrics and summary
+
+std::string MetricsCsvHeader() {
+  return "epoch,step,train_loss,val_loss,val_acc,val_f1,val_acc_frame,"
+         "val_f1_frame,lr,wall_s,frames_per_s";
+}
+
+std::string MetricsCsvRow(const EpochMetrics& m) {
+  return fmt::format("{},{},{},{},{},{},{},{},{},{:.3f},{:.1f}",
+                     m.epoch,
+                     m.step,
+                     CsvDouble(m.train_loss),
+                     CsvDouble(m.val_loss),
+                     CsvDouble(m.val_acc),
+                     CsvDouble(m.val_f1),
+                     CsvDouble(m.val_acc_frame),
+                     CsvDouble(m.val_f1_frame),
+                     CsvDouble(m.lr),
+                     m.wall_s,
+                     m.frames_per_s);
+}
+
+std::string ToString(TrainSummary::Termination termination) {
+  switch (termination) {
+    case TrainSummary::Termination::kMaxEpochs:
+      return "max_epochs";
+    case TrainSummary::Termination::kEarlyStopping:
+      return "early_stopping";
+    case TrainSummary::Termination::kNonFiniteLoss:
+      return "non_finite_loss";
+    case TrainSummary::Termination::kAlreadyFinished:
+      return "already_finished";
+  }
+  return "unknown";
+}
+
+std::string TrainSummary::BriefReport() const {
+  const EpochMetrics m = last();
+  return fmt::format(
+      "training ended ({}): {} epochs, best val_loss {:.6g} at epoch {}; "
+      "last val_acc {:.4f}, val_f1 {:.4f}; {}",
+      ToString(termination),
+      epochs_completed,
+      best_val_loss,
+      best_epoch,
+      m.val_acc,
+      m.val_f1,
+      message);
+}
+
+// ---------------------------------------------------------------------------
+// Checkpoints
+
+CheckpointInfo ReadCheckpointInfo(const std::filesystem::path& path) {
+  torch::serialize::InputArchive archive = OpenCheckpoint(path);
+  return ReadInfo(archive, path);
+}
+
+void CheckCompatible(const CheckpointInfo& info,
+                     const ModelIdentity& identity,
+                     const std::filesystem::path& path) {
+  std::string va, vb;
+  const std::string diff =
+      FirstDifference(info.model_config, identity.model_config, "", &va, &vb);
+  if (!diff.empty()) {
+    throw ConfigError(fmt::format(
+        "Checkpoint {} does not match the model: {} = {} in the checkpoint, "
+        "{} in the config",
+        path.string(),
+        diff,
+        va,
+        vb));
+  }
+  if (info.labels != identity.labels) {
+    size_t i = 0;
+    while (i < info.labels.size() && i < identity.labels.size() &&
+           info.labels[i] == identity.labels[i]) {
+      ++i;
+    }
+    throw ConfigError(fmt::format(
+        "Checkpoint {} does not match the model: labels differ ({} labels "
+        "in the checkpoint, {} in the config; first difference at id {}: "
+        "'{}' vs '{}')",
+        path.string(),
+        info.labels.size(),
+        identity.labels.size(),
+        i,
+        i < info.labels.size() ? info.labels[i] : "<none>",
+        i < identity.labels.size() ? identity.labels[i] : "<none>"));
+  }
+}
+
+namespace {
+
+void LoadModelArchive(torch::serialize::InputArchive& archive,
+                      const std::filesystem::path& path,
+                      LabelerImpl& model) {
+  torch::serialize::InputArchive model_archive;
+  if (!archive.try_read("model", model_archive)) {
+    throw IoError(fmt::format("{}: checkpoint has no model", path.string()));
+  }
+  // Module::load would silently resize a parameter of another shape; the
+  // identity check normally prevents that, this catches the rest.
+  std::vector<std::vector<int64_t>> shapes;
+  for (const torch::Tensor& p : model.parameters()) {
+    shapes.push_back(p.sizes().vec());
+  }
+  torch::NoGradGuard no_grad;
+  try {
+    model.load(model_archive);
+  } catch (const c10::Error& e) {
+    throw IoError(fmt::format("{}: cannot load the model weights ({})",
+                              path.string(),
+                              e.what_without_backtrace()));
+  }
+  size_t i = 0;
+  for (const auto& p : model.named_parameters()) {
+    if (p.value().sizes().vec() != shapes[i++]) {
+      throw ConfigError(fmt::format(
+          "Checkpoint {} does not match the model: parameter {} has shape {} "
+          "in the checkpoint, {} in the model",
+          path.string(),
+          p.key(),
+          fmt::join(p.value().sizes().vec(), "x"),
+          fmt::join(shapes[i - 1], "x")));
+    }
+  }
+}
+
+}  // namespace
+
+void LoadCheckpointWeights(const std::filesystem::path& path,
+                           const ModelIdentity& identity,
+                           LabelerImpl& model) {
+  torch::serialize::InputArchive archive = OpenCheckpoint(path);
+  const CheckpointInfo info = ReadInfo(archive, path);
+  CheckCompatible(info, identity, path);
+  LoadModelArchive(archive, path, model);
+}
+
+Labeler LoadLabelerFromCheckpoint(const std::filesystem::path& path) {
+  torch::serialize::InputArchive archive = OpenCheckpoint(path);
+  const CheckpointInfo info = ReadInfo(archive, path);
+  const ConfigNode* model_node = info.model_config.Find("model");
+  const ConfigNode* norm_node = info.model_config.Find("normalization");
+  if (model_node == nullptr || norm_node == nullptr) {
+    throw IoError(
+        fmt::format("{}: checkpoint model config lacks model/normalization",
+                    path.string()));
+  }
+  Labeler model = BuildLabeler(
+      *model_node, *norm_node, static_cast<int64_t>(info.labels.size()));
+  LoadModelArchive(archive, path, *model);
+  model->eval();
+  return model;
+}
+
+// ---------------------------------------------------------------------------
+// Trainer
+
+struct Trainer::State {
+  int epoch = 0;  // completed epochs
+  int64_t step = 0;
+  double lr = 0;
+  double best_val_loss = std::numeric_limits<double>::infinity();
+  int best_epoch = 0;
+  bool finished = false;
+  std::string finish_reason;
+  std::vector<EpochMetrics> history;
+};
+
+Trainer::Trainer(TrainerOptions options,
+                 Labeler model,
+                 std::shared_ptr<const LabelingLoss> loss,
+                 const OptimizerSpec& optimizer,
+                 std::unique_ptr<LrScheduler> scheduler,
+                 ModelIdentity identity,
+                 std::filesystem::path run_dir)
+    : options_(std::move(options)),
+      model_(std::move(model)),
+      loss_(std::move(loss)),
+      optimizer_(optimizer.Build(model_->parameters())),
+      scheduler_(std::move(scheduler)),
+      early_stopping_(options_.early_stopping),
+      identity_(std::move(identity)),
+      run_dir_(std::move(run_dir)) {
+  options_.Validate();
+  SOMA_CHECK(loss_ != nullptr);
+  if (scheduler_ == nullptr) scheduler_ = std::make_unique<ConstantLr>();
+  SOMA_CHECK_EQ(static_cast<int64_t>(identity_.labels.size()),
+                model_->num_labels());
+  CreateDirectories(run_dir_ / "checkpoints");
+}
+
+Trainer::~Trainer() = default;
+
+std::filesystem::path Trainer::last_checkpoint() const {
+  return run_dir_ / "checkpoints" / "last.pt";
+}
+std::filesystem::path Trainer::best_checkpoint() const {
+  return run_dir_ / "checkpoints" / "best.pt";
+}
+std::filesystem::path Trainer::metrics_path() const {
+  return run_dir_ / "metrics.csv";
+}
+
+void Trainer::Resume(const std::filesystem::path& path, State* state) {
+  torch::serialize::InputArchive archive = OpenCheckpoint(path);
+  const CheckpointInfo info = ReadInfo(archive, path);
+  CheckCompatible(info, identity_, path);
+  LoadModelArchive(archive, path, *model_);
+  torch::serialize::InputArchive optimizer_archive;
+  if (!archive.try_read("optimizer", optimizer_archive)) {
+    throw IoError(
+        fmt::format("{}: checkpoint has no optimizer state", path.string()));
+  }
+  optimizer_->load(optimizer_archive);
+  scheduler_->LoadState(ReadString(archive, "meta_scheduler", path));
+  early_stopping_.LoadState(ReadString(archive, "meta_early_stopping", path));
+  torch::Tensor rng_state;
+  if (archive.try_read("rng_torch", rng_state)) {
+    at::Generator generator = at::detail::getDefaultCPUGenerator();
+    std::lock_guard<std::mutex> lock(generator.mutex());
+    generator.set_state(rng_state);
+  }
+  state->epoch = info.epoch;
+  state->step = info.step;
+  state->lr = info.lr;
+  state->best_val_loss = ReadDouble(archive, "meta_best_val_loss", path);
+  state->best_epoch =
+      static_cast<int>(ReadInt(archive, "meta_best_epoch", path));
+  state->finished = info.finished;
+  state->finish_reason = ReadString(archive, "meta_finish_reason", path);
+  state->history = ParseMetricsCsv(info.metrics_csv);
+  SetLearningRate(*optimizer_, state->lr);
+}
+
+void Trainer::SaveCheckpoints(const State& state, bool is_best) {
+  torch::serialize::OutputArchive archive;
+  torch::serialize::OutputArchive model_archive;
+  model_->save(model_archive);
+  archive.write("model", model_archive);
+  torch::serialize::OutputArchive optimizer_archive;
+  optimizer_->save(optimizer_archive);
+  archive.write("optimizer", optimizer_archive);
+  archive.write("meta_format", c10::IValue(std::string(kCheckpointFormat)));
+  archive.write("meta_version", c10::IValue(kCheckpointVersion));
+  archive.write("meta_epoch", c10::IValue(static_cast<int64_t>(state.epoch)));
+  archive.write("meta_step", c10::IValue(state.step));
+  archive.write("meta_lr", c10::IValue(state.lr));
+  archive.write("meta_best_val_loss", c10::IValue(state.best_val_loss));
+  archive.write("meta_best_epoch",
+                c10::IValue(static_cast<int64_t>(state.best_epoch)));
+  archive.write("meta_finished",
+                c10::IValue(static_cast<int64_t>(state.finished ? 1 : 0)));
+  archive.write("meta_finish_reason", c10::IValue(state.finish_reason));
+  archive.write("meta_model_config",
+                c10::IValue(DumpYaml(identity_.model_config)));
+  archive.write("meta_labels", c10::IValue(JoinLines(identity_.labels)));
+  archive.write("meta_config", c10::IValue(identity_.config_yaml));
+  archive.write("meta_metrics_csv", c10::IValue(MetricsCsv(state.history)));
+  archive.write("meta_scheduler", c10::IValue(scheduler_->SaveState()));
+  archive.write("meta_early_stopping",
+                c10::IValue(early_stopping_.SaveState()));
+  {
+    at::Generator generator = at::detail::getDefaultCPUGenerator();
+    std::lock_guard<std::mutex> lock(generator.mutex());
+    archive.write("rng_torch", generator.get_state());
+  }
+  std::ostringstream bytes;
+  archive.save_to(bytes);
+  const std::string data = bytes.str();
+  if (is_best) WriteFileAtomic(best_checkpoint(), data);
+  WriteFileAtomic(last_checkpoint(), data);
+}
+
+EpochMetrics Trainer::Validate(const BatchSource& val, EpochMetrics row) {
+  const int64_t total = val.frames_per_epoch();
+  int64_t batch = options_.val_batch_size > 0 ? options_.val_batch_size
+                                              : options_.batch_size;
+  batch = std::min(batch, total);
+  const int64_t num_batches = total / batch;  // drop_last, as released
+  const int64_t num_labels = model_->num_labels();
+  LabelingMetrics metrics(static_cast<int>(num_labels));
+  double loss_sum = 0;
+  int64_t loss_count = 0;
+  model_->eval();
+  {
+    torch::NoGradGuard no_grad;
+    Prefetcher prefetcher(
+        val, PlanBatches(0, num_batches, batch), options_.prefetch);
+    LabeledFrames frames;
+    while (prefetcher.Next(&frames)) {
+      const Tensors t = ToTensors(frames);
+      const LabelerOutput out = model_->forward(t.points);
+      const double loss =
+          loss_
+              ->Compute(out.log_assignment,
+                        BuildAugmentedTargets(t.labels, num_labels))
+              .item<double>();
+      if (!std::isnan(loss)) {
+        loss_sum += loss;
+        ++loss_count;
+      }
+      const torch::Tensor valid = t.points.ne(0).any(2).contiguous();
+      const torch::Tensor predicted =
+          ResolveDuplicateLabels(out.label_ids, valid, num_labels)
+              .to(torch::kLong)
+              .contiguous();
+      metrics.AddBatch(t.labels.data_ptr<int64_t>(),
+                       predicted.data_ptr<int64_t>(),
+                       valid.data_ptr<bool>(),
+                       t.labels.size(0),
+                       t.labels.size(1));
+    }
+  }
+  model_->train();
+  row.val_loss = loss_count > 0 ? loss_sum / static_cast<double>(loss_count)
+                                : std::numeric_limits<double>::quiet_NaN();
+  row.val_acc = metrics.batch_accuracy();
+  row.val_f1 = metrics.batch_f1();
+  row.val_acc_frame = metrics.frame_accuracy();
+  row.val_f1_frame = metrics.frame_f1();
+  return row;
+}
+
+TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
+  Timer total_timer;
+  if (train.labels() != identity_.labels || val.labels() != identity_.labels) {
+    throw ConfigError(fmt::format(
+        "Trainer: the data's labels ({} train, {} val) differ from the "
+        "model's {} labels",
+        train.num_labels(),
+        val.num_labels(),
+        identity_.labels.size()));
+  }
+  const int64_t num_batches = train.frames_per_epoch() / options_.batch_size;
+  if (num_batches < 1) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. train.batch_size = {}. Violated constraint: "
+        "batch_size <= frames per epoch ({})",
+        options_.batch_size,
+        train.frames_per_epoch()));
+  }
+
+  State state;
+  state.lr = GetLearningRate(*optimizer_);
+  std::filesystem::path resume_path;
+  if (options_.resume == "auto") {
+    if (std::filesystem::exists(last_checkpoint())) {
+      resume_path = last_checkpoint();
+    }
+  } else if (options_.resume != "never" && !options_.resume.empty()) {
+    resume_path = options_.resume;
+  }
+  TrainSummary summary;
+  if (!resume_path.empty()) {
+    Resume(resume_path, &state);
+    SOMA_LOG(INFO,
+             "train: resumed from {} after epoch {} (step {}, lr {})",
+             resume_path.string(),
+             state.epoch,
+             state.step,
+             state.lr);
+  } else if (!options_.init_from.empty()) {
+    LoadCheckpointWeights(options_.init_from, identity_, *model_);
+    SOMA_LOG(INFO, "train: weights initialised from {}", options_.init_from);
+  }
+  summary.start_epoch = state.epoch;
+
+  auto finish = [&](TrainSummary::Termination termination,
+                    std::string message) {
+    summary.termination = termination;
+    summary.message = std::move(message);
+    summary.epochs_completed = state.epoch;
+    summary.best_epoch = state.best_epoch;
+    summary.best_val_loss = state.best_val_loss;
+    summary.history = state.history;
+    summary.wall_s = total_timer.ElapsedSeconds();
+    return summary;
+  };
+  if (state.finished) {
+    return finish(
+        TrainSummary::Termination::kAlreadyFinished,
+        "the checkpoint's run had already finished: " + state.finish_reason);
+  }
+
+  const int64_t num_labels = model_->num_labels();
+  const int64_t frames_per_epoch = num_batches * options_.batch_size;
+  const int remaining = std::max(0, options_.max_epochs - state.epoch);
+  ProgressBar progress(
+      remaining * frames_per_epoch,
+      ProgressBar::Options{
+          .label = "train", .unit = "frames", .enabled = options_.progress});
+  const Rng torch_stream = Rng(options_.seed).Stream("torch");
+  model_->train();
+
+  while (state.epoch < options_.max_epochs) {
+    const int epoch = state.epoch;  // 0-based index of the epoch being run
+    Timer epoch_timer;
+    EpochMetrics row;
+    row.epoch = epoch + 1;
+    row.lr = state.lr;
+    double loss_sum = 0;
+    {
+      Prefetcher prefetcher(
+          train,
+          PlanBatches(epoch, num_batches, options_.batch_size),
+          options_.prefetch);
+      LabeledFrames frames;
+      const Rng epoch_stream =
+          torch_stream.Stream(static_cast<uint64_t>(epoch));
+      for (int64_t b = 0; b < num_batches; ++b) {
+        if (!prefetcher.Next(&frames)) {
+          throw InternalError("Trainer: the prefetcher ran out of batches");
+        }
+        torch::manual_seed(
+            epoch_stream.Stream(static_cast<uint64_t>(b)).seed());
+        const Tensors t = ToTensors(frames);
+        const LabelerOutput out = model_->forward(t.points);
+        const torch::Tensor loss = loss_->Compute(
+            out.log_assignment, BuildAugmentedTargets(t.labels, num_labels));
+        const double value = loss.item<double>();
+        if (!std::isfinite(value)) {
+          const std::string message = fmt::format(
+              "non-finite loss at epoch {} step {} batch {}/{} (loss = {})",
+              epoch + 1,
+              state.step + 1,
+              b + 1,
+              num_batches,
+              value);
+          SOMA_LOG(ERROR, "train: {}", message);
+          progress.Finish();
+          return finish(TrainSummary::Termination::kNonFiniteLoss, message);
+        }
+        optimizer_->zero_grad();
+        loss.backward();
+        optimizer_->step();
+        ++state.step;
+        loss_sum += value;
+        progress.Update(
+            options_.batch_size,
+            fmt::format(
+                "ep {}/{} loss={:.4g}", epoch + 1, options_.max_epochs, value));
+        if (callbacks_.on_batch_end) {
+          callbacks_.on_batch_end(BatchEvent{
+              epoch + 1, static_cast<int>(b + 1), state.step, value});
+        }
+      }
+      if (prefetcher.wait_seconds() > 0.05 * epoch_timer.ElapsedSeconds()) {
+        SOMA_LOG(DEBUG,
+                 "train: waited {:.1f}s for data in epoch {}",
+                 prefetcher.wait_seconds(),
+                 epoch + 1);
+      }
+    }
+    const double train_s = epoch_timer.ElapsedSeconds();
+    row.step = state.step;
+    row.train_loss = loss_sum / static_cast<double>(num_batches);
+    row = Validate(val, row);
+    row.wall_s = epoch_timer.ElapsedSeconds();
+    row.frames_per_s = static_cast<double>(frames_per_epoch) / train_s;
+
+    // End of epoch: schedule, early stopping, best, checkpoint, metrics.
+    state.lr = scheduler_->Step(row.val_loss, state.lr);
+    SetLearningRate(*optimizer_, state.lr);
+    const bool stop = early_stopping_.Update(row.val_loss);
+    const bool is_best = row.val_loss < state.best_val_loss;
+    if (is_best) {
+      state.best_val_loss = row.val_loss;
+      state.best_epoch = epoch + 1;
+    }
+    state.epoch = epoch + 1;
+    state.history.push_back(row);
+    if (stop) {  // (max_epochs needs no flag: a resume checks the count)
+      state.finished = true;
+      state.finish_reason = "early stopping: " + early_stopping_.reason();
+    }
+    SaveCheckpoints(state, is_best);
+    WriteFileAtomic(metrics_path(), MetricsCsv(state.history));
+    SOMA_LOG(INFO,
+             "epoch {}/{}: train_loss {:.5g} val_loss {:.5g} val_acc {:.4f} "
+             "val_f1 {:.4f} lr {:.3g} ({:.1f}s, {:.0f} frames/s){}",
+             row.epoch,
+             options_.max_epochs,
+             row.train_loss,
+             row.val_loss,
+             row.val_acc,
+             row.val_f1,
+             row.lr,
+             row.wall_s,
+             row.frames_per_s,
+             is_best ? " *" : "");
+    if (callbacks_.on_epoch_end) callbacks_.on_epoch_end(row);
+    if (stop) {
+      progress.Finish();
+      return finish(TrainSummary::Termination::kEarlyStopping,
+                    early_stopping_.reason());
+    }
+  }
+  progress.Finish();
+  return finish(TrainSummary::Termination::kMaxEpochs,
+                fmt::format("max_epochs = {} reached", options_.max_epochs));
+}
+
+}  // namespace soma

@@ -1,0 +1,371 @@
+// The trainer on a tiny model and a tiny learnable point-labelling task:
+// the loss decreases, runs are deterministic, resume (also after a crash
+// mid-epoch) ends where an uninterrupted run ends, the NaN guard, refusal of
+// mismatching checkpoints, fine-tuning, and Adam's classic L2 decay.
+#include "framework/train/trainer.h"
+
+#include "framework/config/yaml_io.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+#include "framework/core/random.h"
+#include "framework/model/loss.h"
+#include "framework/model/torch_utils.h"
+#include "framework/testing/testing.h"
+#include "framework/train/batch_source.h"
+#include "framework/train/optimizer.h"
+
+#include <fmt/format.h>
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace soma {
+namespace {
+
+constexpr int kLabels = 6;
+constexpr int kPoints = 8;  // L + 2 ghost slots
+
+std::vector<std::string> Labels() {
+  std::vector<std::string> labels;
+  for (int i = 0; i < kLabels; ++i) labels.push_back("M" + std::to_string(i));
+  return labels;
+}
+
+// Label j sits near a fixed position; each frame drops up to one label, adds
+// up to one ghost, shuffles the points and zero-pads to kPoints.
+LabeledFrames TinyFrames(int64_t frames, uint64_t seed) {
+  Rng layout(1234);
+  std::vector<std::array<float, 3>> centers(kLabels);
+  for (auto& c : centers) {
+    for (float& v : c) v = static_cast<float>(layout.Uniform(-1, 1));
+  }
+  LabeledFrames out;
+  out.num_points = kPoints;
+  out.points.assign(static_cast<size_t>(frames * kPoints * 3), 0.0f);
+  out.labels.assign(static_cast<size_t>(frames * kPoints), kLabels);
+  for (int64_t f = 0; f < frames; ++f) {
+    Rng rng = Rng(seed).Stream(static_cast<uint64_t>(f));
+    std::vector<std::pair<std::array<float, 3>, int>> points;
+    const int dropped = static_cast<int>(rng.UniformInt(-1, kLabels - 1));
+    for (int j = 0; j < kLabels; ++j) {
+      if (j == dropped) continue;
+      std::array<float, 3> p = centers[static_cast<size_t>(j)];
+      for (float& v : p) v += static_cast<float>(rng.Normal(0, 0.05));
+      points.push_back({p, j});
+    }
+    if (rng.Bernoulli(0.5)) {
+      std::array<float, 3> ghost;
+      for (float& v : ghost) v = static_cast<float>(rng.Uniform(-1.5, 1.5));
+      points.push_back({ghost, kLabels});
+    }
+    const std::vector<int> perm = rng.Permutation(kPoints);
+    size_t next = 0;
+    for (int slot : perm) {
+      if (next >= points.size()) break;
+      float* dst = out.frame_points(f) + slot * 3;
+      for (int c = 0; c < 3; ++c) dst[c] = points[next].first[c];
+      out.frame_labels(f)[slot] = static_cast<int16_t>(points[next].second);
+      ++next;
+    }
+  }
+  return out;
+}
+
+ConfigNode ModelConfig(int d_model = 16) {
+  return ParseYaml(fmt::format("model:\n"
+                               "  name: soma\n"
+                               "  d_model: {}\n"
+                               "  hidden: 16\n"
+                               "  backbone:\n"
+                               "    name: self_attention\n"
+                               "    num_layers: 1\n"
+                               "    num_heads: 2\n"
+                               "normalization:\n"
+                               "  name: sinkhorn\n"
+                               "  num_iters: 5\n",
+                               d_model),
+                   "test");
+}
+
+class TrainerTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    previous_threads_ = TorchThreads();
+    SetTorchThreads(1);
+    train_ = std::make_unique<InMemoryBatchSource>(
+        TinyFrames(64, 1), Labels(), true, 5);
+    val_ = std::make_unique<InMemoryBatchSource>(
+        TinyFrames(32, 2), Labels(), false, 0);
+    root_ = testing::CreateTestDir();
+  }
+  void TearDown() override { SetTorchThreads(previous_threads_); }
+
+  TrainerOptions Options(int epochs) const {
+    TrainerOptions options;
+    options.batch_size = 16;
+    options.max_epochs = epochs;
+    options.progress = false;
+    options.seed = 99;
+    return options;
+  }
+
+  std::unique_ptr<Trainer> MakeTrainer(
+      const TrainerOptions& options,
+      const std::filesystem::path& dir,
+      ConfigNode config = ModelConfig(),
+      std::vector<std::string> labels = Labels(),
+      double lr = 3e-3) {
+    torch::manual_seed(7);
+    Labeler model = BuildLabeler(config.at("model"),
+                                 config.at("normalization"),
+                                 static_cast<int64_t>(labels.size()));
+    AdamOptions adam;
+    adam.lr = lr;
+    ModelIdentity identity{config, labels, "seed: 99\n"};
+    return std::make_unique<Trainer>(options,
+                                     model,
+                                     std::make_shared<SomaLabelingLoss>(),
+                                     AdamSpec(adam),
+                                     std::make_unique<ReduceLrOnPlateau>(),
+                                     identity,
+                                     dir);
+  }
+
+  std::unique_ptr<InMemoryBatchSource> train_;
+  std::unique_ptr<InMemoryBatchSource> val_;
+  std::filesystem::path root_;
+  int previous_threads_ = 1;
+};
+
+// metrics.csv without the machine-dependent columns (wall_s, frames_per_s).
+std::string DeterministicColumns(const std::filesystem::path& csv) {
+  std::istringstream in(ReadFile(csv));
+  std::string line, out;
+  while (std::getline(in, line)) {
+    for (int i = 0; i < 2; ++i) line = line.substr(0, line.rfind(','));
+    out += line + "\n";
+  }
+  return out;
+}
+
+void ExpectSameWeights(const Labeler& a, const Labeler& b) {
+  const auto pa = a->named_parameters();
+  const auto pb = b->named_parameters();
+  ASSERT_EQ(pa.size(), pb.size());
+  for (size_t i = 0; i < pa.size(); ++i) {
+    EXPECT_TRUE(torch::equal(pa[i].value(), pb[i].value())) << pa[i].key();
+  }
+  const auto ba = a->named_buffers();
+  const auto bb = b->named_buffers();
+  ASSERT_EQ(ba.size(), bb.size());
+  for (size_t i = 0; i < ba.size(); ++i) {
+    EXPECT_TRUE(torch::equal(ba[i].value(), bb[i].value())) << ba[i].key();
+  }
+}
+
+TEST_F(TrainerTest, LossDecreasesOnATinySet) {
+  const auto dir = root_;
+  auto trainer = MakeTrainer(Options(12), dir, ModelConfig(), Labels(), 1e-2);
+  const TrainSummary summary = trainer->Train(*train_, *val_);
+  ASSERT_EQ(summary.history.size(), 12u) << summary.BriefReport();
+  EXPECT_EQ(summary.termination, TrainSummary::Termination::kMaxEpochs);
+  const EpochMetrics first = summary.history.front();
+  const EpochMetrics last = summary.history.back();
+  EXPECT_LT(last.train_loss, 0.6 * first.train_loss);
+  EXPECT_LT(last.val_loss, first.val_loss);
+  EXPECT_GT(last.val_acc, first.val_acc);
+  EXPECT_EQ(last.step, 12 * 4);
+  for (const EpochMetrics& m : summary.history) {
+    EXPECT_TRUE(std::isfinite(m.train_loss) && std::isfinite(m.val_loss));
+    EXPECT_GE(m.val_acc, 0);
+    EXPECT_LE(m.val_acc, 1);
+    EXPECT_GE(m.val_f1, 0);
+    EXPECT_LE(m.val_f1, 1);
+  }
+  for (const torch::Tensor& p : trainer->model()->parameters()) {
+    EXPECT_TRUE(torch::isfinite(p).all().item<bool>());
+  }
+  EXPECT_TRUE(std::filesystem::exists(dir / "metrics.csv"));
+  EXPECT_TRUE(std::filesystem::exists(dir / "checkpoints" / "last.pt"));
+  EXPECT_TRUE(std::filesystem::exists(dir / "checkpoints" / "best.pt"));
+  const CheckpointInfo info = ReadCheckpointInfo(dir / "checkpoints/last.pt");
+  EXPECT_EQ(info.epoch, 12);
+  EXPECT_EQ(info.step, 48);
+  EXPECT_EQ(info.labels, Labels());
+  const CheckpointInfo best = ReadCheckpointInfo(dir / "checkpoints/best.pt");
+  EXPECT_EQ(best.epoch, summary.best_epoch);
+}
+
+TEST_F(TrainerTest, SameSeedSameMetrics) {
+  const auto a = root_ / "a";
+  const auto b = root_ / "b";
+  MakeTrainer(Options(3), a)->Train(*train_, *val_);
+  MakeTrainer(Options(3), b)->Train(*train_, *val_);
+  const std::string csv = DeterministicColumns(a / "metrics.csv");
+  EXPECT_EQ(csv, DeterministicColumns(b / "metrics.csv"));
+  EXPECT_EQ(std::count(csv.begin(), csv.end(), '\n'), 4);
+  // Another seed changes the numbers.
+  const auto c = root_ / "c";
+  TrainerOptions other = Options(3);
+  other.seed = 100;
+  auto train_other = std::make_unique<InMemoryBatchSource>(
+      TinyFrames(64, 1), Labels(), true, 6);
+  MakeTrainer(other, c)->Train(*train_other, *val_);
+  EXPECT_NE(csv, DeterministicColumns(c / "metrics.csv"));
+}
+
+TEST_F(TrainerTest, ResumeEndsLikeAnUninterruptedRun) {
+  const auto full = root_ / "full";
+  auto reference = MakeTrainer(Options(3), full);
+  reference->Train(*train_, *val_);
+
+  // One epoch, then a fresh Trainer (new process) continues to 3.
+  const auto split = root_ / "split";
+  MakeTrainer(Options(1), split)->Train(*train_, *val_);
+  auto resumed = MakeTrainer(Options(3), split);
+  const TrainSummary summary = resumed->Train(*train_, *val_);
+  EXPECT_EQ(summary.start_epoch, 1);
+  EXPECT_EQ(summary.epochs_completed, 3);
+  EXPECT_EQ(DeterministicColumns(full / "metrics.csv"),
+            DeterministicColumns(split / "metrics.csv"));
+  ExpectSameWeights(reference->model(), resumed->model());
+}
+
+TEST_F(TrainerTest, CrashMidEpochLosesOnlyThatEpoch) {
+  const auto full = root_ / "full";
+  auto reference = MakeTrainer(Options(3), full);
+  reference->Train(*train_, *val_);
+
+  const auto dir = root_ / "crash";
+  auto crashing = MakeTrainer(Options(3), dir);
+  crashing->set_callbacks(
+      Trainer::Callbacks{.on_batch_end =
+                             [](const Trainer::BatchEvent& e) {
+                               if (e.epoch == 2 && e.batch == 2)
+                                 throw std::runtime_error("kill");
+                             },
+                         .on_epoch_end = nullptr});
+  EXPECT_THROW(crashing->Train(*train_, *val_), std::runtime_error);
+  EXPECT_EQ(ReadCheckpointInfo(dir / "checkpoints/last.pt").epoch, 1);
+  // A torn temp file of a checkpoint write in progress is ignored.
+  WriteFileAtomic(dir / "checkpoints" / "last.pt.tmp.12345", "torn");
+  {
+    std::ofstream torn(dir / "checkpoints" / "last.pt.tmp.999");
+    torn << "PK\x03\x04 truncated";
+  }
+  auto resumed = MakeTrainer(Options(3), dir);
+  const TrainSummary summary = resumed->Train(*train_, *val_);
+  EXPECT_EQ(summary.start_epoch, 1);
+  EXPECT_EQ(DeterministicColumns(full / "metrics.csv"),
+            DeterministicColumns(dir / "metrics.csv"));
+  ExpectSameWeights(reference->model(), resumed->model());
+
+  // Resuming a finished run trains nothing more.
+  auto again = MakeTrainer(Options(3), dir);
+  const TrainSummary done = again->Train(*train_, *val_);
+  EXPECT_EQ(done.start_epoch, 3);
+  EXPECT_EQ(done.history.size(), 3u);
+}
+
+TEST_F(TrainerTest, NonFiniteLossStopsWithEpochStepBatch) {
+  LabeledFrames frames = TinyFrames(64, 1);
+  frames.points[0] = std::nanf("");
+  InMemoryBatchSource bad(std::move(frames), Labels(), false, 0);
+  const auto dir = root_;
+  const TrainSummary summary = MakeTrainer(Options(2), dir)->Train(bad, *val_);
+  EXPECT_EQ(summary.termination, TrainSummary::Termination::kNonFiniteLoss);
+  EXPECT_NE(summary.message.find("non-finite loss at epoch 1 step 1 batch 1"),
+            std::string::npos)
+      << summary.message;
+  EXPECT_FALSE(std::filesystem::exists(dir / "checkpoints" / "last.pt"));
+}
+
+TEST_F(TrainerTest, RefusesAMismatchingCheckpoint) {
+  const auto dir = root_;
+  MakeTrainer(Options(1), dir)->Train(*train_, *val_);
+  // Another d_model in the same run dir: resume is refused naming the key.
+  const std::string message = testing::ErrorMessage<ConfigError>([&] {
+    MakeTrainer(Options(2), dir, ModelConfig(24))->Train(*train_, *val_);
+  });
+  EXPECT_NE(message.find("model.d_model"), std::string::npos) << message;
+  EXPECT_NE(message.find("16"), std::string::npos) << message;
+  // Other labels: refused naming the label.
+  std::vector<std::string> labels = Labels();
+  labels[3] = "XX";
+  InMemoryBatchSource train(TinyFrames(64, 1), labels, true, 5);
+  InMemoryBatchSource val(TinyFrames(32, 2), labels, false, 0);
+  const std::string label_message = testing::ErrorMessage<ConfigError>([&] {
+    MakeTrainer(Options(2), dir, ModelConfig(), labels)->Train(train, val);
+  });
+  EXPECT_NE(label_message.find("'M3' vs 'XX'"), std::string::npos)
+      << label_message;
+  // Fine-tuning from a mismatching checkpoint is refused too.
+  TrainerOptions finetune = Options(1);
+  finetune.init_from = (dir / "checkpoints" / "best.pt").string();
+  const std::string init_message = testing::ErrorMessage<ConfigError>([&] {
+    MakeTrainer(finetune, root_ / "ft", ModelConfig(24))->Train(*train_, *val_);
+  });
+  EXPECT_NE(init_message.find("model.d_model"), std::string::npos);
+  // Not a checkpoint at all.
+  WriteFileAtomic(dir / "junk.pt", "junk");
+  TrainerOptions junk = Options(1);
+  junk.resume = (dir / "junk.pt").string();
+  EXPECT_THROW(MakeTrainer(junk, root_ / "j")->Train(*train_, *val_), IoError);
+}
+
+TEST_F(TrainerTest, FineTuningLoadsWeightsOnly) {
+  const auto dir = root_ / "pre";
+  auto pre = MakeTrainer(Options(2), dir);
+  pre->Train(*train_, *val_);
+  TrainerOptions options = Options(0);  // load and stop
+  options.init_from = (dir / "checkpoints" / "last.pt").string();
+  auto tuned = MakeTrainer(options, root_ / "ft");
+  const TrainSummary summary = tuned->Train(*train_, *val_);
+  EXPECT_EQ(summary.start_epoch, 0);
+  ExpectSameWeights(pre->model(), tuned->model());
+  // The stand-alone loader gives the same network.
+  Labeler loaded = LoadLabelerFromCheckpoint(dir / "checkpoints" / "last.pt");
+  ExpectSameWeights(pre->model(), loaded);
+}
+
+TEST(Adam, WeightDecayIsClassicL2) {
+  // Zero loss gradient, theta = 2, wd = 0.01, lr = 0.1. Classic L2: g = 0.02,
+  // the first Adam step moves by lr * sign(g) -> 1.9. AdamW would give
+  // 2 - lr * wd * 2 = 1.998.
+  torch::Tensor theta = torch::full({1}, 2.0, torch::requires_grad());
+  AdamOptions options;
+  options.lr = 0.1;
+  options.weight_decay = 0.01;
+  auto optimizer = AdamSpec(options).Build({theta});
+  (theta * 0).sum().backward();
+  optimizer->step();
+  EXPECT_NEAR(theta.item<double>(), 1.9, 1e-6);
+  EXPECT_DOUBLE_EQ(GetLearningRate(*optimizer), 0.1);
+  SetLearningRate(*optimizer, 0.01);
+  EXPECT_DOUBLE_EQ(GetLearningRate(*optimizer), 0.01);
+}
+
+TEST(TrainerOptions, DecodeAndValidate) {
+  const TrainerOptions options = DecodeTrainerOptions(
+      ParseYaml("batch_size: 32\nmax_epochs: 4\nresume: false\n"
+                "early_stopping: {patience: 2}\n",
+                "t"));
+  EXPECT_EQ(options.batch_size, 32);
+  EXPECT_EQ(options.max_epochs, 4);
+  EXPECT_EQ(options.resume, "never");
+  EXPECT_EQ(options.early_stopping.patience, 2);
+  EXPECT_THROW(DecodeTrainerOptions(ParseYaml("batch_size: 0\n", "t")),
+               ConfigError);
+  EXPECT_THROW(DecodeTrainerOptions(ParseYaml("bach_size: 3\n", "t")),
+               ConfigError);
+}
+
+}  // namespace
+}  // namespace soma
