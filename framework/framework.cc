@@ -6,7 +6,9 @@
 #include "framework/model/register.h"
 #include "framework/motion/motion_source.h"
 #include "framework/registry/registry.h"
+#include "framework/synth/register.h"
 #include "framework/tasks/task.h"
+#include "framework/train/register.h"
 
 #include <fmt/format.h>
 
@@ -45,7 +47,9 @@ void RegisterBuiltins() {
   DefaultResolvers().Register("soma.sweep_id", SweepIdResolver);
   RegisterBodySources();
   RegisterMotionSources();
+  RegisterSynthComponents();
   RegisterModelComponents();
+  RegisterTrainComponents();
   RegisterTasks();
 }
 

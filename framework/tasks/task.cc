@@ -6,17 +6,27 @@
 namespace soma {
 
 // Each task registers itself from its own file.
+void RegisterCorruptTask(Registry<Task>& registry);
 void RegisterCoverageTask(Registry<Task>& registry);
 void RegisterDemoTask(Registry<Task>& registry);
+void RegisterEvalTask(Registry<Task>& registry);
 void RegisterInspectTask(Registry<Task>& registry);
+void RegisterLabelTask(Registry<Task>& registry);
 void RegisterRealismTask(Registry<Task>& registry);
+void RegisterSynthTask(Registry<Task>& registry);
+void RegisterTrainTask(Registry<Task>& registry);
 
 void RegisterTasks() {
   Registry<Task>& registry = GetRegistry<Task>();
+  RegisterCorruptTask(registry);
   RegisterCoverageTask(registry);
   RegisterDemoTask(registry);
+  RegisterEvalTask(registry);
   RegisterInspectTask(registry);
+  RegisterLabelTask(registry);
   RegisterRealismTask(registry);
+  RegisterSynthTask(registry);
+  RegisterTrainTask(registry);
   RegisterConfigGroup<Task>("task");
 }
 

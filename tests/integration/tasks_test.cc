@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include "tests/integration/soma_command.h"
 #include <filesystem>
 #include <string>
 #include <sys/wait.h>
@@ -15,23 +16,11 @@ namespace {
 
 namespace fs = std::filesystem;
 
-int RunSomaCommand(const fs::path& cwd,
-                   const std::vector<std::string>& args,
-                   std::string* err) {
-  std::string command = "cd '" + cwd.string() + "' && '" + SOMA_BINARY + "'";
-  for (const std::string& a : args) command += " '" + a + "'";
-  command += " -cp '" + (testing::SourceDir() / "configs").string() +
-             "' 2> stderr.txt";
-  const int status = std::system(command.c_str());
-  *err = ReadFile(cwd / "stderr.txt");
-  return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-}
-
 TEST(Tasks, InspectExportsMeshMarkersAndRender) {
   const auto dir = testing::CreateTestDir();
   std::string err;
   ASSERT_EQ(
-      RunSomaCommand(
+      testing::RunSomaTask(
           dir, {"inspect", "hydra.run.dir=out", "task.render_size=128"}, &err),
       0)
       << err;
@@ -50,14 +39,14 @@ TEST(Tasks, InspectExportsMeshMarkersAndRender) {
 TEST(Tasks, CoverageReportsInvertedFrames) {
   const auto dir = testing::CreateTestDir();
   std::string err;
-  ASSERT_EQ(RunSomaCommand(dir,
-                           {"coverage",
-                            "hydra.run.dir=out",
-                            "motion.clips_per_type=1",
-                            "motion.duration_s=1.0",
-                            "motion.val_fraction=0",
-                            "motion.test_fraction=0"},
-                           &err),
+  ASSERT_EQ(testing::RunSomaTask(dir,
+                                 {"coverage",
+                                  "hydra.run.dir=out",
+                                  "motion.clips_per_type=1",
+                                  "motion.duration_s=1.0",
+                                  "motion.val_fraction=0",
+                                  "motion.test_fraction=0"},
+                                 &err),
             0)
       << err;
   const ConfigNode metrics =
@@ -72,14 +61,14 @@ TEST(Tasks, RealismComparesWithRealTakes) {
   const std::string data = testing::SharedDataDir().string();
   // The verdict (pass/fail) is measured, not asserted here; the command must
   // run and report every segment.
-  ASSERT_EQ(
-      RunSomaCommand(dir,
-                     {"realism",
-                      "hydra.run.dir=out",
-                      "task.files=[" + data + "/c3d/HDM_mm_01-02_03_120.c3d," +
-                          data + "/c3d/cmu_01_01.c3d]"},
-                     &err),
-      0)
+  ASSERT_EQ(testing::RunSomaTask(
+                dir,
+                {"realism",
+                 "hydra.run.dir=out",
+                 "task.files=[" + data + "/c3d/HDM_mm_01-02_03_120.c3d," +
+                     data + "/c3d/cmu_01_01.c3d]"},
+                &err),
+            0)
       << err;
   const std::string md = ReadFile(dir / "out/realism.md");
   for (const char* segment :
@@ -92,9 +81,9 @@ TEST(Tasks, RealismComparesWithRealTakes) {
 TEST(Tasks, MissingMandatoryModelPathIsOneClearError) {
   const auto dir = testing::CreateTestDir();
   std::string err;
-  EXPECT_NE(
-      RunSomaCommand(dir, {"inspect", "body=smplx", "hydra.run.dir=out"}, &err),
-      0);
+  EXPECT_NE(testing::RunSomaTask(
+                dir, {"inspect", "body=smplx", "hydra.run.dir=out"}, &err),
+            0);
   EXPECT_NE(err.find("MissingMandatoryValue: body.path"), std::string::npos)
       << err;
 }

@@ -1,0 +1,299 @@
+// `soma eval`: scores labelled mocap against ground truth with SOMA's exact
+// metrics (framework/eval/labeling_metrics.h, REFERENCE.md section 4).
+//
+//   soma eval task.gt=<corrupted>.h5 task.rec=<labelled>.c3d
+//   soma eval task.gt=<corrupted>.h5 'task.rec=[seed0.c3d,seed1.c3d]'
+//
+// Ground truth is either a `soma corrupt` output (the `.h5` ground truth with
+// its `.c3d` beside it: points from the C3D, per-frame labels from the .h5)
+// or a labelled C3D (one label per column). A labelled output is a C3D as
+// `soma label` writes it: labelled columns plus null columns named `*<k>`.
+// Points are compared by exact coordinates, so both must come from the same
+// capture. With several outputs (e.g. models trained with different seeds)
+// every output is scored and the mean +- std over outputs is reported too.
+#include "framework/body/marker_layout.h"
+#include "framework/config/decode.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+#include "framework/core/logging.h"
+#include "framework/core/progress.h"
+#include "framework/eval/labeling_metrics.h"
+#include "framework/io/c3d.h"
+#include "framework/io/mocap_dataset.h"
+#include "framework/registry/registry.h"
+#include "framework/tasks/task.h"
+
+#include <fmt/format.h>
+
+#include <cmath>
+#include <filesystem>
+#include <sstream>
+
+namespace soma {
+namespace {
+
+namespace fs = std::filesystem;
+
+/// T frames of K points (metres, (0,0,0) = missing) and their labels.
+struct ScoredSequence {
+  std::vector<Eigen::Matrix3Xd> frames;
+  /// Per column (size K) when every frame shares the column labels, or per
+  /// frame (T x K) when ground truth changes along a column.
+  std::vector<std::string> column_labels;
+  std::vector<std::vector<std::string>> frame_labels;
+
+  const std::vector<std::string>& LabelsAt(size_t t) const {
+    return frame_labels.empty() ? column_labels : frame_labels[t];
+  }
+};
+
+/// A C3D column label as a class name: canonical marker name, or null for
+/// unlabelled columns (`*12`, empty).
+std::string ClassOfColumn(const std::string& label) {
+  const std::string canonical = CanonicalMarkerLabel(label);
+  if (canonical.empty() || canonical[0] == '*') return std::string(kNullLabel);
+  return canonical;
+}
+
+ScoredSequence ReadC3dSequence(const fs::path& path) {
+  const C3dData c3d = ReadC3d(path);
+  const double to_metres = c3d.MetresPerUnit();
+  ScoredSequence seq;
+  seq.frames.resize(c3d.num_frames);
+  for (int t = 0; t < c3d.num_frames; ++t) {
+    Eigen::Matrix3Xd& f = seq.frames[t];
+    f.setZero(3, c3d.num_points);
+    for (int p = 0; p < c3d.num_points; ++p) {
+      if (c3d.valid(t, p))
+        f.col(p) = c3d.Point(t, p).cast<double>() * to_metres;
+    }
+  }
+  seq.column_labels.resize(c3d.num_points);
+  for (int p = 0; p < c3d.num_points; ++p) {
+    const std::string label =
+        p < static_cast<int>(c3d.labels.size()) ? c3d.labels[p] : "";
+    seq.column_labels[p] = ClassOfColumn(label);
+  }
+  return seq;
+}
+
+/// A `soma corrupt` ground truth: points from `<stem>.c3d`, per-frame label
+/// ids from `<stem>.h5`.
+ScoredSequence ReadCorruptedGroundTruth(const fs::path& h5) {
+  fs::path c3d_path = h5;
+  c3d_path.replace_extension(".c3d");
+  if (!fs::exists(c3d_path)) {
+    throw IoError(fmt::format(
+        "{}: ground truth needs its corrupted capture {} beside it (as soma "
+        "corrupt writes them)",
+        h5.string(),
+        c3d_path.string()));
+  }
+  ScoredSequence seq = ReadC3dSequence(c3d_path);
+  const DatasetReader reader(h5);
+  const DatasetInfo& info = reader.info();
+  if (reader.num_frames() != static_cast<int64_t>(seq.frames.size()) ||
+      info.num_points != static_cast<int>(seq.column_labels.size())) {
+    throw IoError(fmt::format(
+        "{}: ground truth has {} frames x {} columns but {} has {} x {}",
+        h5.string(),
+        reader.num_frames(),
+        info.num_points,
+        c3d_path.string(),
+        seq.frames.size(),
+        seq.column_labels.size()));
+  }
+  LabeledFrames gt;
+  reader.Read(0, reader.num_frames(), &gt);
+  seq.frame_labels.assign(seq.frames.size(), {});
+  for (size_t t = 0; t < seq.frames.size(); ++t) {
+    const int16_t* ids = gt.frame_labels(static_cast<int64_t>(t));
+    auto& labels = seq.frame_labels[t];
+    labels.resize(info.num_points);
+    for (int k = 0; k < info.num_points; ++k) {
+      labels[k] = ids[k] < info.num_labels() ? info.labels[ids[k]]
+                                             : std::string(kNullLabel);
+    }
+  }
+  return seq;
+}
+
+ScoredSequence ReadGroundTruth(const fs::path& path) {
+  if (path.extension() == ".h5") return ReadCorruptedGroundTruth(path);
+  if (path.extension() == ".c3d") return ReadC3dSequence(path);
+  throw IoError(fmt::format(
+      "{}: ground truth must be a soma corrupt .h5 (with its .c3d) or a "
+      "labelled .c3d",
+      path.string()));
+}
+
+struct EvalOptions {
+  std::string gt;
+  std::vector<std::string> rec;
+  double tolerance = 1e-8;
+};
+
+std::string Pm(const Summary& s) {
+  return fmt::format("{:.4f} ± {:.4f}", s.mean, s.std);
+}
+
+class EvalTask : public Task {
+ public:
+  explicit EvalTask(EvalOptions options) : options_(std::move(options)) {}
+
+  void Run(const ConfigNode& /*cfg*/, RunContext& ctx) override {
+    const ScoredSequence gt = ReadGroundTruth(options_.gt);
+    const MatchTolerance tolerance{options_.tolerance};
+    std::ostringstream per_frame;
+    per_frame << "run,frame,pairs,accuracy,precision,recall,f1\n";
+    std::vector<LabelPair> all_pairs;
+    std::vector<LabelingEvaluator::Result> results;
+    for (size_t r = 0; r < options_.rec.size(); ++r) {
+      const ScoredSequence rec = ReadC3dSequence(options_.rec[r]);
+      if (rec.frames.size() != gt.frames.size()) {
+        throw IoError(
+            fmt::format("{}: {} frames, but the ground truth {} has {}",
+                        options_.rec[r],
+                        rec.frames.size(),
+                        options_.gt,
+                        gt.frames.size()));
+      }
+      LabelingEvaluator evaluator;
+      ProgressBar bar(static_cast<int64_t>(gt.frames.size()),
+                      {.label = "eval", .unit = "frames"});
+      for (size_t t = 0; t < gt.frames.size(); ++t) {
+        const auto pairs = MatchFrameLabels(gt.frames[t],
+                                            gt.LabelsAt(t),
+                                            rec.frames[t],
+                                            rec.LabelsAt(t),
+                                            tolerance);
+        if (!pairs.empty()) {
+          const LabelingMetrics m = ComputeLabelingMetrics(pairs);
+          per_frame << fmt::format("{},{},{},{:.6f},{:.6f},{:.6f},{:.6f}\n",
+                                   r,
+                                   t,
+                                   m.num_pairs,
+                                   m.accuracy,
+                                   m.precision,
+                                   m.recall,
+                                   m.f1);
+        }
+        evaluator.AddFrame(pairs);
+        bar.Update();
+      }
+      bar.Finish();
+      results.push_back(evaluator.Finish());
+      all_pairs.insert(all_pairs.end(),
+                       evaluator.pooled_pairs().begin(),
+                       evaluator.pooled_pairs().end());
+    }
+    WriteFileAtomic(ctx.output_dir / "per_frame.csv", per_frame.str());
+    const LabelingMetrics pooled = ComputeLabelingMetrics(all_pairs);
+    WriteClassReportCsv(pooled, ctx.output_dir / "class_report.csv");
+    const ConfusionMatrix confusion = ComputeConfusionMatrix(all_pairs);
+    WriteConfusionMatrixCsv(confusion, ctx.output_dir / "confusion.csv");
+    WriteConfusionMatrixPng(confusion, ctx.output_dir / "confusion.png");
+    Report(results, pooled, ctx);
+  }
+
+ private:
+  void Report(const std::vector<LabelingEvaluator::Result>& results,
+              const LabelingMetrics& pooled,
+              RunContext& ctx) const {
+    std::ostringstream md;
+    md << fmt::format("# Labelling evaluation\n\nGround truth: `{}`\n\n",
+                      options_.gt);
+    md << "Per output: per-frame metrics (REFERENCE.md 4.3), shown as mean ± "
+          "std over frames (population std), and the median over frames; "
+          "`pooled` = over all points of the sequence.\n\n";
+    md << "| output | frames | accuracy (mean ± std) | median | F1 (mean ± "
+          "std) | median | precision | recall | pooled acc | pooled F1 |\n"
+          "|---|---|---|---|---|---|---|---|---|---|\n";
+    for (size_t r = 0; r < results.size(); ++r) {
+      const auto& x = results[r];
+      md << fmt::format(
+          "| `{}` | {} | {} | {:.4f} | {} | {:.4f} | {:.4f} | {:.4f} | {:.4f} "
+          "| {:.4f} |\n",
+          fs::path(options_.rec[r]).filename().string(),
+          x.num_frames,
+          Pm(x.accuracy),
+          x.accuracy.median,
+          Pm(x.f1),
+          x.f1.median,
+          x.precision.mean,
+          x.recall.mean,
+          x.pooled.accuracy,
+          x.pooled.f1);
+    }
+    // The first output's numbers are the job's metrics; with several
+    // outputs the across-output mean and std are reported as well.
+    const auto& first = results.front();
+    ctx.ReportMetric("acc_mean", first.accuracy.mean);
+    ctx.ReportMetric("acc_median", first.accuracy.median);
+    ctx.ReportMetric("acc_std", first.accuracy.std);
+    ctx.ReportMetric("f1_mean", first.f1.mean);
+    ctx.ReportMetric("f1_median", first.f1.median);
+    ctx.ReportMetric("f1_std", first.f1.std);
+    ctx.ReportMetric("prec_mean", first.precision.mean);
+    ctx.ReportMetric("recall_mean", first.recall.mean);
+    ctx.ReportMetric("acc_pooled", first.pooled.accuracy);
+    ctx.ReportMetric("f1_pooled", first.pooled.f1);
+    ctx.ReportMetric("num_frames", static_cast<double>(first.num_frames));
+    if (results.size() > 1) {
+      std::vector<double> acc, f1;
+      for (const auto& x : results) {
+        acc.push_back(x.accuracy.mean);
+        f1.push_back(x.f1.mean);
+      }
+      const Summary a = Summarize(acc), f = Summarize(f1);
+      md << fmt::format(
+          "\nAcross the {} outputs (mean ± population std over outputs of "
+          "their per-frame means): accuracy {}, F1 {}.\n",
+          results.size(),
+          Pm(a),
+          Pm(f));
+      ctx.ReportMetric("acc_mean_over_runs", a.mean);
+      ctx.ReportMetric("acc_std_over_runs", a.std);
+      ctx.ReportMetric("f1_mean_over_runs", f.mean);
+      ctx.ReportMetric("f1_std_over_runs", f.std);
+    }
+    md << fmt::format(
+        "\nAll outputs pooled: accuracy {:.4f}, macro F1 {:.4f} over {} "
+        "points and {} classes (class_report.csv, confusion.csv, "
+        "confusion.png).\n",
+        pooled.accuracy,
+        pooled.f1,
+        pooled.num_pairs,
+        pooled.classes.size());
+    WriteFileAtomic(ctx.output_dir / "eval.md", md.str());
+    SOMA_LOG(INFO,
+             "eval: accuracy {} F1 {} (mean ± std over {} frames)",
+             Pm(first.accuracy),
+             Pm(first.f1),
+             first.num_frames);
+  }
+
+  EvalOptions options_;
+};
+
+}  // namespace
+
+void RegisterEvalTask(Registry<Task>& registry) {
+  registry.Register("eval", [](const ConfigNode& node, BuildContext&) {
+    ConfigReader reader(node);
+    EvalOptions options;
+    reader.Require("gt", &options.gt);
+    if (const ConfigNode* rec = node.Find("rec"); rec && rec->IsString()) {
+      reader.Require("rec", &options.rec.emplace_back());
+    } else {
+      reader.Require("rec", &options.rec);
+    }
+    reader.Read("tolerance", &options.tolerance);
+    reader.Check("rec", !options.rec.empty(), "at least one labelled output");
+    reader.Check("tolerance", options.tolerance >= 0, "tolerance >= 0");
+    reader.Finish();
+    return std::make_unique<EvalTask>(std::move(options));
+  });
+}
+
+}  // namespace soma

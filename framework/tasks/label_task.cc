@@ -1,0 +1,326 @@
+// `soma label`: labels a raw C3D capture with a trained labeler
+// (REFERENCE.md 5.2-5.6).
+//
+//   soma label task.input=take.c3d task.checkpoint=run/checkpoints/best.pt
+//   soma label ... task.tracklet=true      # majority vote per trajectory
+//
+// Input labels are ignored: every valid point of every frame is a raw point.
+// Per frame, the valid points are packed (P = most points in any frame), the
+// labeler assigns each a label or null, and a label claimed by two points of
+// a frame goes to null on both (5.4). Tracklet mode (5.5) then gives every
+// input trajectory (C3D column) its most frequent per-frame prediction, null
+// votes included, and applies the same-frame duplicate rule again.
+//
+// Outputs in the run directory:
+//  - `<stem>_labeled.c3d`: the L labelled trajectories (model label order)
+//    followed by the most null points of any frame as `*<k>` trajectories;
+//    coordinates are the input's values in the input's units, bit for bit;
+//  - `<stem>_labels.h5`: a soma dataset (docs/dataset_format.md): the packed
+//    points (metres) and each point's final label id, plus the attributes
+//    `source`, `checkpoint`, `mode` and per point, as extra datasets,
+//    `confidence` (probability of the assigned class) and `column` (input
+//    trajectory index, -1 for padding).
+#include "framework/config/decode.h"
+#include "framework/core/error.h"
+#include "framework/core/logging.h"
+#include "framework/core/progress.h"
+#include "framework/core/timer.h"
+#include "framework/io/c3d.h"
+#include "framework/io/mocap_dataset.h"
+#include "framework/model/inference.h"
+#include "framework/model/labeler.h"
+#include "framework/model/torch_utils.h"
+#include "framework/registry/registry.h"
+#include "framework/tasks/task.h"
+#include "framework/train/trainer.h"
+
+#include <ATen/ATen.h>
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+
+namespace soma {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct LabelOptions {
+  std::string input;
+  std::string checkpoint;
+  bool tracklet = false;
+  InferenceOptions inference;
+};
+
+/// Valid input points packed per frame.
+struct PackedPoints {
+  int num_frames = 0;
+  int max_points = 0;                     // P
+  std::vector<std::vector<int>> columns;  // per frame: input column per point
+};
+
+bool IsPresent(const C3dData& c3d, int t, int k) {
+  if (!c3d.valid(t, k)) return false;
+  const Eigen::Vector3f p = c3d.Point(t, k);
+  return p.allFinite() && !(p.array() == 0.0f).all();
+}
+
+PackedPoints Pack(const C3dData& c3d) {
+  PackedPoints packed;
+  packed.num_frames = c3d.num_frames;
+  packed.columns.resize(c3d.num_frames);
+  for (int t = 0; t < c3d.num_frames; ++t) {
+    for (int k = 0; k < c3d.num_points; ++k) {
+      if (IsPresent(c3d, t, k)) packed.columns[t].push_back(k);
+    }
+    packed.max_points =
+        std::max(packed.max_points, static_cast<int>(packed.columns[t].size()));
+  }
+  return packed;
+}
+
+/// REFERENCE 5.5: each input column gets its most frequent prediction over
+/// the frames where it has a point (null votes count; first max on ties,
+/// i.e. the smallest id). Returns the per-point labels of the packed layout.
+at::Tensor TrackletLabels(const at::Tensor& predicted,
+                          const PackedPoints& packed,
+                          int num_columns,
+                          int64_t num_labels) {
+  std::vector<std::vector<int64_t>> votes(
+      num_columns, std::vector<int64_t>(num_labels + 1, 0));
+  auto pred = predicted.accessor<int64_t, 2>();
+  for (int t = 0; t < packed.num_frames; ++t) {
+    for (size_t p = 0; p < packed.columns[t].size(); ++p) {
+      ++votes[packed.columns[t][p]][pred[t][p]];
+    }
+  }
+  std::vector<int64_t> column_label(num_columns, num_labels);
+  for (int k = 0; k < num_columns; ++k) {
+    const auto& v = votes[k];
+    column_label[k] = std::max_element(v.begin(), v.end()) - v.begin();
+  }
+  at::Tensor out = at::full_like(predicted, num_labels);
+  auto o = out.accessor<int64_t, 2>();
+  for (int t = 0; t < packed.num_frames; ++t) {
+    for (size_t p = 0; p < packed.columns[t].size(); ++p) {
+      o[t][p] = column_label[packed.columns[t][p]];
+    }
+  }
+  return out;
+}
+
+class LabelTask : public Task {
+ public:
+  explicit LabelTask(LabelOptions options) : options_(std::move(options)) {}
+
+  void Run(const ConfigNode& cfg, RunContext& ctx) override {
+    if (const ConfigNode* threads = cfg.Find("threads")) {
+      SetTorchThreads(static_cast<int>(threads->AsInt()));
+    }
+    const CheckpointInfo info = ReadCheckpointInfo(options_.checkpoint);
+    Labeler model = LoadLabelerFromCheckpoint(options_.checkpoint);
+    const int64_t num_labels = static_cast<int64_t>(info.labels.size());
+
+    const C3dData c3d = ReadC3d(options_.input);
+    if (c3d.num_frames == 0) {
+      throw IoError(fmt::format("{}: the capture has no frames to label",
+                                options_.input));
+    }
+    const double to_metres = c3d.MetresPerUnit();
+    const PackedPoints packed = Pack(c3d);
+    if (packed.max_points == 0) {
+      throw IoError(fmt::format("{}: no valid point in any of its {} frames",
+                                options_.input,
+                                c3d.num_frames));
+    }
+    const int T = c3d.num_frames, P = packed.max_points;
+    at::Tensor points = at::zeros({T, P, 3}, at::kFloat);
+    {
+      auto a = points.accessor<float, 3>();
+      for (int t = 0; t < T; ++t) {
+        for (size_t p = 0; p < packed.columns[t].size(); ++p) {
+          const Eigen::Vector3f x = c3d.Point(t, packed.columns[t][p]);
+          for (int i = 0; i < 3; ++i) {
+            a[t][p][i] = static_cast<float>(x[i] * to_metres);
+          }
+        }
+      }
+    }
+
+    // Label in chunks so that the progress bar moves on long captures.
+    FrameLabeler labeler(model.ptr(), options_.inference);
+    const int64_t chunk =
+        std::max<int64_t>(options_.inference.batch_size, 1) * 8;
+    std::vector<at::Tensor> ids, predicted, confidence;
+    ProgressBar bar(T, {.label = "label", .unit = "frames"});
+    Timer timer;
+    for (int64_t t0 = 0; t0 < T; t0 += chunk) {
+      const int64_t n = std::min<int64_t>(chunk, T - t0);
+      const FrameLabels out = labeler.Label(points.narrow(0, t0, n));
+      ids.push_back(out.label_ids);
+      predicted.push_back(out.predicted_ids);
+      confidence.push_back(out.label_confidence);
+      bar.Update(n);
+    }
+    bar.Finish();
+    const double seconds = timer.ElapsedSeconds();
+    at::Tensor label_ids = at::cat(ids);
+    const at::Tensor predicted_ids = at::cat(predicted);
+    const at::Tensor probabilities = at::cat(confidence);
+    const at::Tensor valid = points.abs().sum(-1) > 0;
+    if (options_.tracklet) {
+      label_ids = ResolveDuplicateLabels(
+          TrackletLabels(predicted_ids, packed, c3d.num_points, num_labels),
+          valid,
+          num_labels);
+    }
+    const at::Tensor assigned_confidence =
+        probabilities.gather(2, label_ids.unsqueeze(-1)).squeeze(-1);
+
+    const std::string stem = fs::path(options_.input).stem().string();
+    WriteLabeledC3d(c3d,
+                    packed,
+                    label_ids,
+                    info.labels,
+                    ctx.output_dir / (stem + "_labeled.c3d"));
+    WriteSidecar(points,
+                 packed,
+                 label_ids,
+                 assigned_confidence,
+                 info,
+                 c3d,
+                 ctx.output_dir / (stem + "_labels.h5"));
+
+    // Summary metrics: how much was labelled and how fast.
+    const double fps = T / std::max(seconds, 1e-9);
+    const int64_t num_points = valid.sum().item<int64_t>();
+    const int64_t num_null =
+        ((label_ids == num_labels) & valid).sum().item<int64_t>();
+    ctx.ReportMetric("frames", T);
+    ctx.ReportMetric("frames_per_s", fps);
+    ctx.ReportMetric("points", static_cast<double>(num_points));
+    ctx.ReportMetric("null_fraction",
+                     num_points > 0 ? double(num_null) / num_points : 0.0);
+    SOMA_LOG(INFO,
+             "label: {} frames x {} points, {:.0f} frames/s ({} mode), "
+             "{:.1f}% null; wrote {}_labeled.c3d and {}_labels.h5",
+             T,
+             P,
+             fps,
+             options_.tracklet ? "tracklet" : "per-frame",
+             num_points > 0 ? 100.0 * num_null / num_points : 0.0,
+             stem,
+             stem);
+  }
+
+ private:
+  /// REFERENCE 5.4/5.6: L labelled columns then `*<k>` null columns.
+  static void WriteLabeledC3d(const C3dData& in,
+                              const PackedPoints& packed,
+                              const at::Tensor& label_ids,
+                              const std::vector<std::string>& labels,
+                              const fs::path& path) {
+    const int T = in.num_frames;
+    const int L = static_cast<int>(labels.size());
+    auto ids = label_ids.accessor<int64_t, 2>();
+    int max_null = 0;
+    for (int t = 0; t < T; ++t) {
+      int n = 0;
+      for (size_t p = 0; p < packed.columns[t].size(); ++p) n += ids[t][p] == L;
+      max_null = std::max(max_null, n);
+    }
+    const int K = L + max_null;
+    C3dData out;
+    out.source = path.string();
+    out.frame_rate = in.frame_rate;
+    out.first_frame = in.first_frame;
+    out.num_frames = T;
+    out.num_points = K;
+    out.units = in.units.empty() ? "mm" : in.units;
+    out.labels = labels;
+    for (int k = 0; k < max_null; ++k)
+      out.labels.push_back(fmt::format("*{}", k));
+    out.num_file_labels = K;
+    out.points.setZero(T, 3 * int64_t{K});
+    out.residuals.setConstant(T, K, -1.0f);
+    out.valid.setConstant(T, K, false);
+    for (int t = 0; t < T; ++t) {
+      int next_null = L;
+      for (size_t p = 0; p < packed.columns[t].size(); ++p) {
+        const int64_t id = ids[t][p];
+        const int column = id < L ? static_cast<int>(id) : next_null++;
+        out.points.row(t).segment<3>(3 * int64_t{column}) =
+            in.points.row(t).segment<3>(3 * int64_t{packed.columns[t][p]});
+        out.residuals(t, column) = 0.0f;
+        out.valid(t, column) = true;
+      }
+    }
+    WriteC3d(path, out);
+  }
+
+  void WriteSidecar(const at::Tensor& points,
+                    const PackedPoints& packed,
+                    const at::Tensor& label_ids,
+                    const at::Tensor& confidence,
+                    const CheckpointInfo& info,
+                    const C3dData& c3d,
+                    const fs::path& path) const {
+    const int T = static_cast<int>(points.size(0));
+    const int P = static_cast<int>(points.size(1));
+    DatasetInfo meta;
+    meta.labels = info.labels;
+    meta.num_points = P;
+    meta.frame_rate = c3d.frame_rate;
+    meta.config_yaml = info.config_yaml;
+    meta.attributes["source"] = options_.input;
+    meta.attributes["checkpoint"] = options_.checkpoint;
+    meta.attributes["mode"] = options_.tracklet ? "tracklet" : "per_frame";
+    LabeledFrames frames;
+    frames.Resize(T, P);
+    const at::Tensor contiguous = points.contiguous();
+    std::copy_n(contiguous.data_ptr<float>(),
+                frames.points.size(),
+                frames.points.data());
+    auto ids = label_ids.accessor<int64_t, 2>();
+    auto conf = confidence.accessor<float, 2>();
+    std::vector<float> confidences(size_t(T) * P, 0.0f);
+    std::vector<float> columns(size_t(T) * P, -1.0f);
+    for (int t = 0; t < T; ++t) {
+      for (int p = 0; p < P; ++p) {
+        frames.frame_labels(t)[p] = static_cast<int16_t>(ids[t][p]);
+        confidences[size_t(t) * P + p] = conf[t][p];
+        if (p < static_cast<int>(packed.columns[t].size())) {
+          columns[size_t(t) * P + p] = float(packed.columns[t][p]);
+        }
+      }
+    }
+    DatasetWriter writer(path, meta);
+    writer.Append(frames);
+    writer.WritePointArray("confidence", confidences);
+    writer.WritePointArray("column", columns);
+    writer.Close();
+  }
+
+  LabelOptions options_;
+};
+
+}  // namespace
+
+void RegisterLabelTask(Registry<Task>& registry) {
+  registry.Register("label", [](const ConfigNode& node, BuildContext&) {
+    ConfigReader reader(node);
+    LabelOptions options;
+    reader.Require("input", &options.input);
+    reader.Require("checkpoint", &options.checkpoint);
+    reader.Read("tracklet", &options.tracklet);
+    if (const ConfigNode* inference = reader.Child("inference")) {
+      options.inference = DecodeInferenceOptions(*inference);
+    }
+    reader.Finish();
+    return std::make_unique<LabelTask>(std::move(options));
+  });
+}
+
+}  // namespace soma
