@@ -19,9 +19,14 @@ namespace {
 // ---------------------------------------------------------------------------
 // Anatomical placement rules (rest T-pose frame: +X left, -Y forward, +Z up).
 // The skin point is where the ray from lerp(joint_a, joint_b, t) along `dir`
-// leaves the body; the marker vertex is the hit triangle's nearest vertex.
-// `mirror` rules also define the other side's label (first letter L <-> R,
-// joints mirrored, x negated).
+// leaves the body (SkinVertexAlongRay: the nearest exit face); the marker
+// vertex is the hit triangle's nearest vertex. `mirror` rules also define the
+// other side's label (first letter L <-> R, joints mirrored, x negated).
+
+/// Pseudo joint after the core joints: the centre of the cranium, measured on
+/// the skin (HeadCentre()). Head rules cast their rays from it.
+constexpr int kHeadCentre = kNumCoreJoints;
+constexpr int kNumRuleJoints = kNumCoreJoints + 1;
 
 struct Rule {
   const char* label;
@@ -36,16 +41,28 @@ struct Rule {
 constexpr bool M = true;
 constexpr bool C = false;
 
-// Head rules start at the head centre, extrapolated from the neck through the
-// head joint (t = 1.9 reaches the centre of the cranium on SMPL-like bodies).
+// Head rules start at the head centre measured on the skin (kHeadCentre,
+// HeadCentre()), not at a point extrapolated from the neck through the head
+// joint: that extrapolation (t = 1.9, fine on SMPL-like bodies) lands in the
+// face of the MakeHuman body, whose neck leans forward (head joint 4 cm in
+// front of the neck joint), and put LFHD/RFHD on the brows 0.095 m apart
+// (captures: 0.159 m).
+// LFHD/LBHD directions follow the real headband (`soma realism`, HDM05 + CMU
+// medians): the front pair is wide (LFHD-RFHD 0.159 m: near the temples, 39
+// degrees forward of lateral, low on the forehead), the back pair narrower
+// (LBHD-RBHD 0.118 m: 58 degrees back of lateral) and the sides long
+// (LFHD-LBHD 0.140-0.150 m). Was (1, -0.9, 0.45) / (1, 0.9, 0.35): a back pair
+// as wide as the front pair and 0.13 m sides. Real head markers sit on a
+// headband over hair, further off the skin than kDefaultDistanceFromSkin, so
+// bare-skin bodies stay a few percent short (procedural -6%, MakeHuman -8%).
 // clang-format off
 const Rule kRules[] = {
     // Head and neck.
-    {"LFHD", kNeck, kHead, 1.9, 1.0, -0.9, 0.45, M, "left temple, front of the headband"},
-    {"LBHD", kNeck, kHead, 1.9, 1.0, 0.9, 0.35, M, "left back of the head, headband"},
-    {"ARIEL", kNeck, kHead, 1.9, 0.0, 0.0, 1.0, C, "vertex (top of the head)"},
-    {"FHEAD", kNeck, kHead, 1.9, 0.0, -1.0, 0.55, C, "mid forehead"},
-    {"BHEAD", kNeck, kHead, 1.9, 0.0, 1.0, 0.3, C, "back of the head, midline"},
+    {"LFHD", kHeadCentre, kHeadCentre, 0.0, 1.0, -0.8, 0.1, M, "left temple, front of the headband"},
+    {"LBHD", kHeadCentre, kHeadCentre, 0.0, 1.0, 1.6, 0.15, M, "left back of the head, headband"},
+    {"ARIEL", kHeadCentre, kHeadCentre, 0.0, 0.0, 0.0, 1.0, C, "vertex (top of the head)"},
+    {"FHEAD", kHeadCentre, kHeadCentre, 0.0, 0.0, -1.0, 0.55, C, "mid forehead"},
+    {"BHEAD", kHeadCentre, kHeadCentre, 0.0, 0.0, 1.0, 0.3, C, "back of the head, midline"},
     {"CHIN", kNeck, kHead, 1.2, 0.0, -1.0, -0.5, C, "chin"},
     {"LNECK", kNeck, kHead, 0.45, 1.0, 0.0, 0.0, M, "left side of the neck"},
     // Trunk.
@@ -103,11 +120,11 @@ const Rule kRules[] = {
     {"LFRM", kLeftElbow, kLeftWrist, 0.35, 0.0, 0.3, 1.0, M, "lateral left forearm, proximal third"},
     {"LFRMIN", kLeftElbow, kLeftWrist, 0.5, 0.0, -0.3, -1.0, M, "medial left forearm"},
     // LWRA/LWRB: thumb- and pinkie-side ends of the CMU/Vicon wrist bar, over
-    // the radial and ulnar styloids. The real bar holds the markers ~2-3 cm
-    // off the skin (captures: LWRA-LWRB ~0.14 m vs ~0.09 m here), but built-in
-    // layouts keep the single "body" type at kDefaultDistanceFromSkin
-    // (marker_layout.h), so the bar offset is not modelled here; the forearm
-    // segment of `soma realism` is within tolerance without it.
+    // the radial and ulnar styloids. The bar holds the markers off the skin:
+    // built-in layouts give the four wrist labels their own marker type
+    // (kWristMarkerType, BuiltinMarkerType) with kWristBarDistanceFromSkin
+    // (marker_layout.h), which turns the skin points' ~0.07 m into the
+    // captures' ~0.14 m LWRA-LWRB.
     {"LWRA", kLeftWrist, kLeftHand, 0.0, 0.0, -1.0, 0.0, M, "left radial styloid (thumb side)"},
     {"LWRB", kLeftWrist, kLeftHand, 0.0, 0.0, 1.0, 0.0, M, "left ulnar styloid (pinkie side)"},
     {"LFIN", kLeftWrist, kLeftHand, 1.0, 0.0, 0.0, 1.0, M, "left second/third metacarpal head"},
@@ -115,9 +132,12 @@ const Rule kRules[] = {
 };
 // clang-format on
 
-constexpr int kMirrorJoint[kNumCoreJoints] = {0,  2,  1,  3,  5,  4,  6,  8,
+// clang-format off
+constexpr int kMirrorJoint[kNumRuleJoints] = {0,  2,  1,  3,  5,  4,  6,  8,
                                               7,  9,  11, 10, 12, 14, 13, 15,
-                                              17, 16, 19, 18, 21, 20, 23, 22};
+                                              17, 16, 19, 18, 21, 20, 23, 22,
+                                              kHeadCentre};
+// clang-format on
 
 struct ResolvedRule {
   std::string label;
@@ -379,6 +399,46 @@ bool RayTriangle(const Eigen::Vector3d& origin,
   return true;
 }
 
+/// The centre of the cranium from the skin: x and y are the centre of the
+/// bounding box of the vertices above the head joint (within 0.25 m of it
+/// horizontally, so raised hands cannot count), z lies kHeadCentreHeight of
+/// the way from the head joint up to the top of the head. Body-independent:
+/// the head joint sits at the skull base on SMPL-like bodies and in the upper
+/// neck, forward of the neck joint, on MakeHuman.
+constexpr double kHeadCentreHeight = 0.4;
+constexpr double kHeadCentreRadius = 0.25;
+
+Eigen::Vector3d HeadCentre(const Eigen::Matrix3Xd& vertices,
+                           const Eigen::Matrix3Xd& joints,
+                           const std::string& body_name) {
+  const Eigen::Vector3d head = joints.col(kHead);
+  Eigen::Vector3d lo =
+      Eigen::Vector3d::Constant(std::numeric_limits<double>::max());
+  Eigen::Vector3d hi = -lo;
+  int count = 0;
+  for (Eigen::Index v = 0; v < vertices.cols(); ++v) {
+    const Eigen::Vector3d p = vertices.col(v);
+    if (p.z() <= head.z() || (p - head).head<2>().norm() > kHeadCentreRadius) {
+      continue;
+    }
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+    ++count;
+  }
+  if (count < 4) {
+    throw InternalError(fmt::format(
+        "body '{}': no head above the head joint ({:.3f}, {:.3f}, {:.3f}) to "
+        "place head markers on",
+        body_name,
+        head.x(),
+        head.y(),
+        head.z()));
+  }
+  return Eigen::Vector3d(0.5 * (lo.x() + hi.x()),
+                         0.5 * (lo.y() + hi.y()),
+                         head.z() + kHeadCentreHeight * (hi.z() - head.z()));
+}
+
 int PlaceByRule(const ResolvedRule& rule,
                 const Eigen::Matrix3Xd& vertices,
                 const Eigen::Matrix3Xi& faces,
@@ -387,22 +447,8 @@ int PlaceByRule(const ResolvedRule& rule,
   const Eigen::Vector3d origin =
       joints.col(rule.joint_a) +
       rule.t * (joints.col(rule.joint_b) - joints.col(rule.joint_a));
-  double best_t = std::numeric_limits<double>::max();
-  Eigen::Index best_face = -1;
-  for (Eigen::Index f = 0; f < faces.cols(); ++f) {
-    double t = 0.0;
-    if (RayTriangle(origin,
-                    rule.dir,
-                    vertices.col(faces(0, f)),
-                    vertices.col(faces(1, f)),
-                    vertices.col(faces(2, f)),
-                    &t) &&
-        t < best_t) {
-      best_t = t;
-      best_face = f;
-    }
-  }
-  if (best_face < 0) {
+  const int vertex = SkinVertexAlongRay(origin, rule.dir, vertices, faces);
+  if (vertex < 0) {
     throw InternalError(
         fmt::format("marker {}: the placement ray from ({:.3f}, {:.3f}, "
                     "{:.3f}) misses body '{}'",
@@ -412,10 +458,45 @@ int PlaceByRule(const ResolvedRule& rule,
                     origin.z(),
                     body_name));
   }
-  const Eigen::Vector3d hit = origin + best_t * rule.dir;
-  int best_vertex = faces(0, best_face);
+  return vertex;
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+// Ray casting.
+
+int SkinVertexAlongRay(const Eigen::Vector3d& origin,
+                       const Eigen::Vector3d& dir,
+                       const Eigen::Matrix3Xd& vertices,
+                       const Eigen::Matrix3Xi& faces) {
+  double best_exit_t = std::numeric_limits<double>::max();
+  double best_any_t = std::numeric_limits<double>::max();
+  Eigen::Index best_exit = -1;
+  Eigen::Index best_any = -1;
+  for (Eigen::Index f = 0; f < faces.cols(); ++f) {
+    const Eigen::Vector3d a = vertices.col(faces(0, f));
+    const Eigen::Vector3d b = vertices.col(faces(1, f));
+    const Eigen::Vector3d c = vertices.col(faces(2, f));
+    double t = 0.0;
+    if (!RayTriangle(origin, dir, a, b, c, &t)) continue;
+    if (t < best_any_t) {
+      best_any_t = t;
+      best_any = f;
+    }
+    // An exit face: its outward normal points along the ray.
+    if ((b - a).cross(c - a).dot(dir) > 0.0 && t < best_exit_t) {
+      best_exit_t = t;
+      best_exit = f;
+    }
+  }
+  const Eigen::Index face = best_exit >= 0 ? best_exit : best_any;
+  if (face < 0) return -1;
+  const Eigen::Vector3d hit =
+      origin + (best_exit >= 0 ? best_exit_t : best_any_t) * dir;
+  int best_vertex = faces(0, face);
   for (int k = 1; k < 3; ++k) {
-    const int v = faces(k, best_face);
+    const int v = faces(k, face);
     if ((vertices.col(v) - hit).squaredNorm() <
         (vertices.col(best_vertex) - hit).squaredNorm()) {
       best_vertex = v;
@@ -423,8 +504,6 @@ int PlaceByRule(const ResolvedRule& rule,
   }
   return best_vertex;
 }
-
-}  // namespace
 
 // ---------------------------------------------------------------------------
 // MarkerLayout.
@@ -837,6 +916,17 @@ const std::vector<std::string>& BuiltinLayoutLabels(std::string_view name) {
       for (const auto& l : *list) superset.push_back(CanonicalMarkerLabel(l));
     }
     (*lists)["superset89"] = Sorted(superset);
+    // Label-id order: by (type, label), as MarkerLayout::Sort() orders the
+    // resolved layout.
+    for (auto& [list_name, labels] : *lists) {
+      std::sort(labels.begin(),
+                labels.end(),
+                [](const std::string& a, const std::string& b) {
+                  const std::string ta = BuiltinMarkerType(a);
+                  const std::string tb = BuiltinMarkerType(b);
+                  return ta != tb ? ta < tb : a < b;
+                });
+    }
     return lists;
   }();
   const auto it = kLists->find(name);
@@ -849,6 +939,19 @@ const std::vector<std::string>& BuiltinLayoutLabels(std::string_view name) {
   return it->second;
 }
 
+std::string BuiltinMarkerType(std::string_view label) {
+  const std::string canonical = CanonicalMarkerLabel(label);
+  for (const char* wrist : {"LWRA", "LWRB", "RWRA", "RWRB"}) {
+    if (canonical == wrist) return std::string(kWristMarkerType);
+  }
+  return "body";
+}
+
+double BuiltinDistanceFromSkin(std::string_view type) {
+  return type == kWristMarkerType ? kWristBarDistanceFromSkin
+                                  : kDefaultDistanceFromSkin;
+}
+
 MarkerLayout MakeBuiltinLayout(const BodyModel& body, std::string_view name) {
   const std::vector<std::string>& labels = BuiltinLayoutLabels(name);
   if (body.num_joints() < kNumCoreJoints) {
@@ -859,7 +962,12 @@ MarkerLayout MakeBuiltinLayout(const BodyModel& body, std::string_view name) {
         body.num_joints(),
         static_cast<int>(kNumCoreJoints)));
   }
-  const Eigen::Matrix3Xd joints = body.RestJoints(body.template_vertices);
+  const Eigen::Matrix3Xd core_joints =
+      body.RestJoints(body.template_vertices).leftCols(kNumCoreJoints);
+  Eigen::Matrix3Xd joints(3, kNumRuleJoints);
+  joints.leftCols(kNumCoreJoints) = core_joints;
+  joints.col(kHeadCentre) =
+      HeadCentre(body.template_vertices, core_joints, body.name);
   const auto& rules = AllRules();
   MarkerLayout layout;
   layout.surface_model_type = body.name;
@@ -871,6 +979,8 @@ MarkerLayout MakeBuiltinLayout(const BodyModel& body, std::string_view name) {
     }
     MarkerLayout::Marker marker;
     marker.label = label;
+    marker.type = BuiltinMarkerType(label);
+    marker.distance_from_skin = BuiltinDistanceFromSkin(marker.type);
     marker.vertex_ids = {PlaceByRule(
         it->second, body.template_vertices, body.faces, joints, body.name)};
     layout.markers.push_back(std::move(marker));

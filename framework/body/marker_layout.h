@@ -30,6 +30,24 @@ namespace soma {
 /// MoSh++'s default marker-centre-to-skin distance for body markers, metres.
 inline constexpr double kDefaultDistanceFromSkin = 0.0095;
 
+/// Marker type of the wrist-bar markers (LWRA, LWRB, RWRA, RWRB) in the
+/// built-in layouts; every other built-in label has type "body".
+inline constexpr std::string_view kWristMarkerType = "wrist";
+
+/// distance_from_skin of the wrist-bar markers in the built-in layouts,
+/// metres. CMU/HDM05 and Plug-in Gait wrist markers sit on the two ends of a
+/// wrist bar that holds them off the skin over the radial and ulnar styloids
+/// (CMU marker guide: "LWRA/LWRB: left wrist bar thumb side / pinkie side").
+/// SOMA's `wrist_markers_on_stick` and MoSh++'s "wrist" marker type use
+/// 0.039 m (REFERENCE.md 3.3, 7.1); we keep that value, untuned. Effect on
+/// `soma realism` (HDM05 + CMU medians: LWRA-LWRB 0.1425 m, RWRA-RWRB
+/// 0.1405 m), body distance 0.0095 m -> 0.039 m:
+///   procedural: wrist pair 0.086 -> 0.1425 m, forearm segment -9.6% -> +2.0%;
+///   MakeHuman:  wrist pair 0.068 -> 0.126 m, forearm segment -15.7% -> -4.9%.
+/// The pair grows by ~2 mm per mm of distance (the two normals are nearly
+/// opposite); the remaining MakeHuman gap is its thinner wrist, not the bar.
+inline constexpr double kWristBarDistanceFromSkin = 0.039;
+
 /// A marker layout (or a superset of several).
 struct MarkerLayout {
   struct Marker {
@@ -150,8 +168,10 @@ MarkerLayout LoadMarkerLayoutForBody(const std::filesystem::path& path,
 /// "cmu41", "pig39", "soma53", "superset89".
 const std::vector<std::string>& BuiltinLayoutNames();
 
-/// The labels of a built-in layout (sorted). Throws ConfigError listing the
-/// names for an unknown name.
+/// The labels of a built-in layout in label-id order, i.e. the order of
+/// MakeBuiltinLayout(body, name).Labels(): sorted by (marker type, label)
+/// (BuiltinMarkerType), so the wrist-bar labels come last ("body" < "wrist").
+/// Throws ConfigError listing the names for an unknown name.
 ///  - cmu41: the CMU / HDM05 41-marker set (the paper's HDM05 validation
 ///    layout), CMU names (RBAC, LWRA/LWRB, LFWT/LBWT, LSHN, LMT5).
 ///  - pig39: Vicon Plug-in Gait full body, Vicon names (RBAK, LASI, LPSI,
@@ -166,14 +186,40 @@ const std::vector<std::string>& BuiltinLayoutNames();
 ///    their right partners; LBAC, T8, CHIN, MFWT, BHEAD, FHEAD).
 const std::vector<std::string>& BuiltinLayoutLabels(std::string_view name);
 
-/// The canonical labels that have an anatomical placement rule (89).
+/// The canonical labels that have an anatomical placement rule (89), sorted
+/// by label.
 const std::vector<std::string>& AnatomicalMarkerLabels();
+
+/// The marker type a built-in layout gives `label` (looked up through
+/// CanonicalMarkerLabel, so LIWR/LOWR/RIWR/ROWR count as wrist labels):
+/// kWristMarkerType for LWRA, LWRB, RWRA, RWRB, "body" otherwise.
+std::string BuiltinMarkerType(std::string_view label);
+
+/// distance_from_skin of a built-in marker type: kWristBarDistanceFromSkin
+/// for kWristMarkerType, kDefaultDistanceFromSkin otherwise.
+double BuiltinDistanceFromSkin(std::string_view type);
 
 /// Resolves a built-in layout on `body` (mean shape): every label is placed
 /// by its anatomical rule (aliases resolve through their canonical rule) on
-/// the nearest vertex of the skin point hit by a ray from the bone axis.
-/// surface_model_type = body.name, type "body", distance 0.0095 m.
+/// the nearest vertex of the skin point where a ray from the bone axis (head
+/// markers: from the head centre measured on the skin) leaves the body
+/// (SkinVertexAlongRay).
+/// surface_model_type = body.name; each marker has type
+/// BuiltinMarkerType(label) and distance BuiltinDistanceFromSkin(type)
+/// (body 0.0095 m, wrist bar kWristBarDistanceFromSkin), so built-in layouts
+/// merge (MergeLayouts) without distance conflicts.
 MarkerLayout MakeBuiltinLayout(const BodyModel& body, std::string_view name);
+
+/// The skin vertex where the ray origin + t * dir (t > 0) leaves the mesh:
+/// the nearest hit on an exit face (outward normal along `dir`), so inner
+/// surfaces facing the origin (mouth or eye cavities, double layers) are
+/// passed through; the nearest hit of any face if no exit face is hit. Of
+/// the hit triangle, the vertex nearest the hit point; -1 if the ray misses.
+/// Faces are counter-clockwise seen from outside (BodyModel convention).
+int SkinVertexAlongRay(const Eigen::Vector3d& origin,
+                       const Eigen::Vector3d& dir,
+                       const Eigen::Matrix3Xd& vertices,
+                       const Eigen::Matrix3Xi& faces);
 
 /// Marker positions (3 x L, markers order) for posed `vertices` and their
 /// `normals`: v[vid] + n[vid] * distance_from_skin, using each label's first

@@ -1,5 +1,6 @@
 #include "framework/body/marker_layout.h"
 
+#include "framework/body/makehuman_body.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/testing/testing.h"
@@ -8,6 +9,7 @@
 
 #include "tests/body/body_test_util.h"
 #include <algorithm>
+#include <filesystem>
 #include <functional>
 #include <map>
 #include <set>
@@ -235,6 +237,90 @@ TEST(MarkerLayout, MergeBuildsTheSuperset) {
   EXPECT_THROW(MergeLayouts({}), ConfigError);
 }
 
+// Real CMU/HDM05 and Plug-in Gait wrist markers sit on a wrist bar off the
+// skin: the built-in layouts put them in their own type with a larger
+// distance (SOMA's wrist_markers_on_stick, 0.039 m).
+TEST(BuiltinLayouts, WristBarMarkersHaveTheirOwnTypeAndDistance) {
+  const std::vector<std::string> wrist = {"LWRA", "LWRB", "RWRA", "RWRB"};
+  for (const auto& label : wrist) {
+    EXPECT_EQ(BuiltinMarkerType(label), kWristMarkerType) << label;
+  }
+  EXPECT_EQ(BuiltinMarkerType("LIWR"), kWristMarkerType);  // MoSh++ aliases
+  EXPECT_EQ(BuiltinMarkerType("subj:rowr"), kWristMarkerType);
+  EXPECT_EQ(BuiltinMarkerType("LFIN"), "body");
+  EXPECT_EQ(BuiltinMarkerType("C7"), "body");
+  EXPECT_GT(kWristBarDistanceFromSkin, 2 * kDefaultDistanceFromSkin);
+  EXPECT_DOUBLE_EQ(BuiltinDistanceFromSkin(kWristMarkerType),
+                   kWristBarDistanceFromSkin);
+  EXPECT_DOUBLE_EQ(BuiltinDistanceFromSkin("body"), kDefaultDistanceFromSkin);
+
+  const BodyModel& body = ProceduralBody();
+  std::vector<MarkerLayout> all;
+  for (const auto& name : BuiltinLayoutNames()) {
+    const MarkerLayout layout = MakeBuiltinLayout(body, name);
+    for (const auto& m : layout.markers) {
+      const bool is_wrist =
+          std::find(wrist.begin(), wrist.end(), m.label) != wrist.end();
+      EXPECT_EQ(m.type, is_wrist ? "wrist" : "body") << name << " " << m.label;
+      EXPECT_DOUBLE_EQ(
+          m.distance_from_skin,
+          is_wrist ? kWristBarDistanceFromSkin : kDefaultDistanceFromSkin)
+          << name << " " << m.label;
+    }
+    // Label ids are ordered by (type, label): the wrist labels come last.
+    const std::vector<std::string> labels = layout.Labels();
+    ASSERT_GE(labels.size(), 4u);
+    EXPECT_EQ(std::vector<std::string>(labels.end() - 4, labels.end()), wrist)
+        << name;
+    // Two markersets in the JSON, and it reads back unchanged.
+    const std::string json = MarkerLayoutToJson(layout);
+    EXPECT_NE(json.find("\"wrist\""), std::string::npos) << name;
+    EXPECT_EQ(ParseMarkerLayout(json, name), layout) << name;
+    all.push_back(layout);
+  }
+
+  // Virtual markers of the wrist bar are further apart than their skin
+  // vertices (by about twice the distance: the normals are nearly opposite).
+  const MarkerLayout& cmu = all[0];
+  const Eigen::Matrix3Xd normals =
+      VertexNormals(body.template_vertices, body.faces);
+  const Eigen::Matrix3Xd p =
+      MarkerPositions(cmu, body.template_vertices, normals);
+  for (const char* side : {"L", "R"}) {
+    const int a = cmu.FindLabel(std::string(side) + "WRA");
+    const int b = cmu.FindLabel(std::string(side) + "WRB");
+    ASSERT_GE(a, 0);
+    ASSERT_GE(b, 0);
+    const double skin =
+        (body.template_vertices.col(cmu.markers[a].vertex_ids[0]) -
+         body.template_vertices.col(cmu.markers[b].vertex_ids[0]))
+            .norm();
+    const double markers = (p.col(a) - p.col(b)).norm();
+    EXPECT_GT(markers, skin + 1.5 * kWristBarDistanceFromSkin) << side;
+    EXPECT_LT(markers, skin + 2.0 * kWristBarDistanceFromSkin + 1e-9) << side;
+  }
+
+  // The built-in layouts merge (one distance per type), also with MoSh++
+  // wrist names, and the superset keeps the wrist type.
+  const MarkerLayout superset = MergeLayouts(all);
+  EXPECT_EQ(superset.num_markers(), 89);
+  EXPECT_EQ(superset.Labels(), BuiltinLayoutLabels("superset89"));
+  MarkerLayout mosh = cmu;
+  for (auto& m : mosh.markers) {
+    if (m.label == "LWRA") m.label = "LIWR";
+    if (m.label == "RWRB") m.label = "ROWR";
+  }
+  const MarkerLayout merged = MergeLayouts({cmu, mosh});
+  EXPECT_EQ(merged, cmu);
+  // A layout that gives a wrist label the body type cannot be merged.
+  MarkerLayout body_wrist = cmu;
+  for (auto& m : body_wrist.markers) {
+    m.type = "body";
+    m.distance_from_skin = kDefaultDistanceFromSkin;
+  }
+  EXPECT_THROW(MergeLayouts({cmu, body_wrist}), ConfigError);
+}
+
 TEST(BuiltinLayouts, HaveTheDocumentedLabels) {
   EXPECT_EQ(
       BuiltinLayoutNames(),
@@ -247,24 +333,27 @@ TEST(BuiltinLayouts, HaveTheDocumentedLabels) {
     EXPECT_EQ(std::set<std::string>(labels.begin(), labels.end()).size(), size)
         << name;
   }
+  const auto contains = [](const std::vector<std::string>& labels,
+                           const std::string& label) {
+    return std::find(labels.begin(), labels.end(), label) != labels.end();
+  };
   const auto& cmu = BuiltinLayoutLabels("cmu41");
   for (const char* label :
        {"RBAC", "LWRA", "LWRB", "LFWT", "LBWT", "LSHN", "LMT5", "C7"}) {
-    EXPECT_TRUE(std::binary_search(cmu.begin(), cmu.end(), std::string(label)))
-        << label;
+    EXPECT_TRUE(contains(cmu, label)) << label;
   }
   const auto& pig = BuiltinLayoutLabels("pig39");
   for (const char* label : {"RBAK", "LASI", "RPSI", "LTIB"}) {
-    EXPECT_TRUE(std::binary_search(pig.begin(), pig.end(), std::string(label)))
-        << label;
+    EXPECT_TRUE(contains(pig, label)) << label;
   }
   // The superset is canonical: every cmu/soma label is in it.
   const auto& superset = BuiltinLayoutLabels("superset89");
   for (const auto& label : BuiltinLayoutLabels("soma53")) {
-    EXPECT_TRUE(std::binary_search(superset.begin(), superset.end(), label))
-        << label;
+    EXPECT_TRUE(contains(superset, label)) << label;
   }
-  EXPECT_EQ(superset, AnatomicalMarkerLabels());
+  EXPECT_EQ(std::set<std::string>(superset.begin(), superset.end()),
+            std::set<std::string>(AnatomicalMarkerLabels().begin(),
+                                  AnatomicalMarkerLabels().end()));
   EXPECT_THROW(BuiltinLayoutLabels("vicon99"), ConfigError);
 }
 
@@ -282,8 +371,12 @@ TEST(BuiltinLayouts, ResolveToDistinctWellSeparatedVertices) {
     for (const auto& m : layout.markers) {
       ASSERT_EQ(m.vertex_ids.size(), 1u);
       vids.insert(m.vertex_ids[0]);
-      EXPECT_DOUBLE_EQ(m.distance_from_skin, kDefaultDistanceFromSkin);
+      EXPECT_EQ(m.type, BuiltinMarkerType(m.label)) << m.label;
+      EXPECT_DOUBLE_EQ(m.distance_from_skin, BuiltinDistanceFromSkin(m.type))
+          << m.label;
     }
+    // BuiltinLayoutLabels lists the labels in label-id order.
+    EXPECT_EQ(layout.Labels(), BuiltinLayoutLabels(name)) << name;
     EXPECT_EQ(vids.size(), static_cast<size_t>(layout.num_markers())) << name;
     const Eigen::Matrix3Xd p =
         MarkerPositions(layout, body.template_vertices, normals);
@@ -347,8 +440,9 @@ TEST(BuiltinLayouts, Cmu41IsAnatomicallyPlausible) {
   EXPECT_LT(dist("LSHO", "RSHO"), 0.45);
   EXPECT_GT(dist("LFWT", "RFWT"), 0.18);
   EXPECT_LT(dist("LFWT", "RFWT"), 0.32);
-  EXPECT_GT(dist("LWRA", "LWRB"), 0.04);
-  EXPECT_LT(dist("LWRA", "LWRB"), 0.09);
+  // Wrist bar (real captures: ~0.14 m).
+  EXPECT_GT(dist("LWRA", "LWRB"), 0.10);
+  EXPECT_LT(dist("LWRA", "LWRB"), 0.18);
   EXPECT_GT(dist("C7", "CLAV"), 0.12);
   EXPECT_LT(dist("C7", "CLAV"), 0.25);
   EXPECT_GT(dist("LHEE", "LTOE"), 0.12);
@@ -385,11 +479,160 @@ TEST(MarkerLayout, MarkerPositionsOffsetAlongTheNormal) {
   const Eigen::Matrix3Xd p = MarkerPositions(layout, body.template_vertices, n);
   for (int i = 0; i < layout.num_markers(); ++i) {
     const int vid = layout.markers[i].vertex_ids[0];
-    EXPECT_NEAR(
-        (p.col(i) - body.template_vertices.col(vid)).norm(), 0.0095, 1e-12);
+    EXPECT_NEAR((p.col(i) - body.template_vertices.col(vid)).norm(),
+                layout.markers[i].distance_from_skin,
+                1e-12);
     EXPECT_GT((p.col(i) - body.template_vertices.col(vid)).dot(n.col(vid)),
               0.0);
   }
+}
+
+// A closed cube [-1, 1]^3 (counter-clockwise = outward, 12 triangles on
+// vertices 0..7) and one extra triangle (vertices 8..10) in the plane x = 0.5
+// whose normal is +x if `inner_faces_out`, else -x (facing the centre).
+struct CubeWithInnerFace {
+  Eigen::Matrix3Xd vertices;
+  Eigen::Matrix3Xi faces;
+};
+
+CubeWithInnerFace MakeCubeWithInnerFace(bool inner_faces_out) {
+  CubeWithInnerFace mesh;
+  mesh.vertices.resize(3, 11);
+  for (int i = 0; i < 8; ++i) {
+    mesh.vertices.col(i) = Eigen::Vector3d(
+        (i & 1) ? 1.0 : -1.0, (i & 2) ? 1.0 : -1.0, (i & 4) ? 1.0 : -1.0);
+  }
+  mesh.vertices.col(8) = Eigen::Vector3d(0.5, -0.5, -0.5);
+  mesh.vertices.col(9) = Eigen::Vector3d(0.5, 0.8, -0.5);
+  mesh.vertices.col(10) = Eigen::Vector3d(0.5, -0.5, 0.8);
+  std::vector<Eigen::Vector3i> faces;
+  const auto add = [&](int a, int b, int c, const Eigen::Vector3d& out) {
+    const Eigen::Vector3d n =
+        (mesh.vertices.col(b) - mesh.vertices.col(a))
+            .cross(mesh.vertices.col(c) - mesh.vertices.col(a));
+    faces.push_back(n.dot(out) > 0 ? Eigen::Vector3i(a, b, c)
+                                   : Eigen::Vector3i(a, c, b));
+  };
+  // Each side: the 4 cube vertices with coordinate `axis` = `bit`.
+  for (int axis = 0; axis < 3; ++axis) {
+    for (int bit = 0; bit < 2; ++bit) {
+      std::vector<int> quad;
+      for (int i = 0; i < 8; ++i) {
+        if (((i >> axis) & 1) == bit) quad.push_back(i);
+      }
+      // quad[0], quad[1], quad[3], quad[2] go round the square.
+      Eigen::Vector3d out = Eigen::Vector3d::Zero();
+      out(axis) = bit ? 1.0 : -1.0;
+      add(quad[0], quad[1], quad[3], out);
+      add(quad[0], quad[3], quad[2], out);
+    }
+  }
+  add(8, 9, 10, Eigen::Vector3d(inner_faces_out ? 1.0 : -1.0, 0, 0));
+  mesh.faces.resize(3, static_cast<Eigen::Index>(faces.size()));
+  for (size_t f = 0; f < faces.size(); ++f) mesh.faces.col(f) = faces[f];
+  return mesh;
+}
+
+TEST(SkinVertexAlongRay, LeavesThroughTheExitFacePastInnerFaces) {
+  const Eigen::Vector3d dir = Eigen::Vector3d(1.0, 0.1, 0.05).normalized();
+  // An inner surface facing the origin (a double layer, the far wall of a
+  // cavity seen from outside it) is passed through: the marker lands on the
+  // outer skin, x = 1. Nearest-hit placement took the inner triangle.
+  const CubeWithInnerFace inward = MakeCubeWithInnerFace(false);
+  const int v = SkinVertexAlongRay(
+      Eigen::Vector3d::Zero(), dir, inward.vertices, inward.faces);
+  ASSERT_GE(v, 0);
+  EXPECT_LT(v, 8);
+  EXPECT_EQ(inward.vertices(0, v), 1.0);
+  // The hit triangle's vertex nearest the exit point (1, 0.1, 0.05).
+  EXPECT_EQ(inward.vertices.col(v), Eigen::Vector3d(1.0, 1.0, 1.0))
+      << inward.vertices.col(v).transpose();
+  // An inner surface the ray leaves through is an exit: it is taken.
+  const CubeWithInnerFace outward = MakeCubeWithInnerFace(true);
+  const int w = SkinVertexAlongRay(
+      Eigen::Vector3d::Zero(), dir, outward.vertices, outward.faces);
+  EXPECT_GE(w, 8);
+  // From outside, the ray enters through x = -1 and leaves through x = 1.
+  const int from_outside = SkinVertexAlongRay(
+      Eigen::Vector3d(-3.0, 0.0, 0.0), dir, inward.vertices, inward.faces);
+  ASSERT_GE(from_outside, 0);
+  EXPECT_EQ(inward.vertices(0, from_outside), 1.0);
+  // Only entry faces ahead: the nearest hit. Nothing ahead: -1.
+  Eigen::Matrix3Xi entry_only(3, 1);
+  entry_only.col(0) = inward.faces.col(inward.faces.cols() - 1);
+  EXPECT_GE(SkinVertexAlongRay(
+                Eigen::Vector3d::Zero(), dir, inward.vertices, entry_only),
+            8);
+  EXPECT_EQ(
+      SkinVertexAlongRay(
+          Eigen::Vector3d(3.0, 0.0, 0.0), dir, inward.vertices, inward.faces),
+      -1);
+}
+
+// Median inter-marker distances of the CMU/HDM05 head markers in the real
+// captures (`soma realism`: HDM_mm_01-02_03_120 and cmu_01_01, mean of the two
+// per-take medians), metres.
+struct HeadPair {
+  const char* a;
+  const char* b;
+  double real_m;
+};
+constexpr HeadPair kRealHeadPairs[] = {{"LFHD", "RFHD", 0.159},
+                                       {"LBHD", "RBHD", 0.118},
+                                       {"LFHD", "LBHD", 0.140},
+                                       {"RFHD", "RBHD", 0.150}};
+
+void ExpectRealisticHead(const BodyModel& body) {
+  const MarkerLayout layout = MakeBuiltinLayout(body, "cmu41");
+  const Eigen::Matrix3Xd p =
+      MarkerPositions(layout,
+                      body.template_vertices,
+                      VertexNormals(body.template_vertices, body.faces));
+  const auto at = [&](const char* label) {
+    return Eigen::Vector3d(p.col(layout.FindLabel(label)));
+  };
+  double body_sum = 0.0, real_sum = 0.0;
+  for (const HeadPair& pair : kRealHeadPairs) {
+    const double d = (at(pair.a) - at(pair.b)).norm();
+    // Each pair within 20% (real head markers sit on a headband over hair,
+    // further off the skin than the layout's 9.5 mm).
+    EXPECT_NEAR(d / pair.real_m, 1.0, 0.2)
+        << body.name << " " << pair.a << "-" << pair.b << " " << d;
+    body_sum += d;
+    real_sum += pair.real_m;
+  }
+  EXPECT_NEAR(body_sum / real_sum, 1.0, 0.1) << body.name;
+  // On the cranium: above the head joint, front markers in front of the back
+  // ones, left on +X.
+  const Eigen::Matrix3Xd joints = body.RestJoints(body.template_vertices);
+  for (const char* label : {"LFHD", "RFHD", "LBHD", "RBHD"}) {
+    EXPECT_GT(at(label).z(), joints(2, kHead)) << body.name << " " << label;
+  }
+  EXPECT_LT(at("LFHD").y() + 0.08, at("LBHD").y()) << body.name;
+  EXPECT_GT(at("LFHD").x(), 0.04) << body.name;
+  EXPECT_LT(at("RBHD").x(), -0.04) << body.name;
+}
+
+TEST(BuiltinLayouts, HeadMarkersMatchRealCapturesOnTheProceduralBody) {
+  ExpectRealisticHead(ProceduralBody());
+}
+
+// The MakeHuman neck leans forward: head rules cast from a point extrapolated
+// from the neck through the head joint started in the face and put LFHD-RFHD
+// 0.095 m apart on the brows (captures 0.159 m), LBHD on the cheeks.
+TEST(BuiltinLayouts, HeadMarkersMatchRealCapturesOnTheMakeHumanBody) {
+  const std::filesystem::path dir =
+      soma::testing::SharedDataDir() / "body/makehuman";
+  if (!std::filesystem::is_directory(dir)) {
+    GTEST_SKIP() << "MakeHuman assets not found at " << dir;
+  }
+  const BodyModel body = LoadMakeHumanBody(dir);
+  ExpectRealisticHead(body);
+  const MarkerLayout layout = MakeBuiltinLayout(body, "superset89");
+  EXPECT_NO_THROW(ValidateLayoutForBody(layout, body, "superset89"));
+  std::set<int> vids;
+  for (const auto& m : layout.markers) vids.insert(m.vertex_ids[0]);
+  EXPECT_EQ(vids.size(), static_cast<size_t>(layout.num_markers()));
 }
 
 }  // namespace

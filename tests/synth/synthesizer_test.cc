@@ -225,7 +225,7 @@ TEST(Synthesizer, RandomPlacementPicksRingVerticesExactly) {
       int best_vid = -1;
       for (const int c : candidates) {
         const Eigen::Vector3d q =
-            v.col(c) + normals.col(c) * kDefaultDistanceFromSkin;
+            v.col(c) + normals.col(c) * Cmu41().markers[l].distance_from_skin;
         const double d = (p.cast<double>() - q).norm();
         if (d < best) {
           best = d;
