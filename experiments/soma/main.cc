@@ -1,9 +1,9 @@
 // The `soma` executable: parse, compose, dispatch. All work happens in
 // framework/; see README.md for the commands.
 //
-//   soma                          run the default task on the default config
-//   soma <command> [overrides]    run a task (demo, ...): sugar for
-//   task=<command> soma -m a=1,2 b=x,y           a Hydra-style multirun sweep
+//   soma                        the default task on the default config
+//   soma <command> [overrides]  a task (train, label, ...) = task=<command>
+//   soma -m a=1,2 b=x,y         a Hydra-style multirun sweep
 #include "framework/config/app.h"
 #include "framework/core/build_info.h"
 #include "framework/framework.h"
