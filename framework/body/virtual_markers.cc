@@ -5,22 +5,9 @@
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <cmath>
-#include <map>
 
 namespace soma {
 namespace {
-
-Eigen::Matrix3d Rodrigues(double x, double y, double z) {
-  const double angle2 = x * x + y * y + z * z;
-  Eigen::Matrix3d k;
-  k << 0.0, -z, y, z, 0.0, -x, -y, x, 0.0;
-  if (angle2 < 1e-24) return Eigen::Matrix3d::Identity() + k;
-  const double angle = std::sqrt(angle2);
-  const double s = std::sin(angle) / angle;
-  const double c = (1.0 - std::cos(angle)) / angle2;
-  return Eigen::Matrix3d::Identity() + s * k + c * (k * k);
-}
 
 /// LBS of local vertices [begin, end), each with exactly K influences
 /// (stride kMaxInfluences = 4 in `joints`/`weights`): blend the rows of the
@@ -111,37 +98,12 @@ void VirtualMarkerSampler::Init(
                                            : distances_from_skin[m]);
   }
 
-  // Incident faces of each marker vertex (in face order, as VertexNormals
-  // sums them) and the local vertex set.
-  std::map<int, int> local_of;  // body id -> local index
-  auto local = [&](int vid) {
-    const auto [it, inserted] =
-        local_of.emplace(vid, static_cast<int>(local_ids_.size()));
-    if (inserted) local_ids_.push_back(vid);
-    return it->second;
-  };
-  for (const int vid : vertex_ids) marker_local_.push_back(local(vid));
-  std::vector<std::vector<std::pair<int, int>>> ring(num_markers);
-  std::map<int, std::vector<int>> markers_of_vertex;
-  for (int m = 0; m < num_markers; ++m)
-    markers_of_vertex[vertex_ids[m]].push_back(m);
-  for (Eigen::Index f = 0; f < body.faces.cols(); ++f) {
-    for (int k = 0; k < 3; ++k) {
-      const auto it = markers_of_vertex.find(body.faces(k, f));
-      if (it == markers_of_vertex.end()) continue;
-      const int b = body.faces((k + 1) % 3, f);
-      const int c = body.faces((k + 2) % 3, f);
-      for (const int m : it->second) ring[m].emplace_back(b, c);
-    }
-  }
-  ring_offsets_.push_back(0);
-  for (int m = 0; m < num_markers; ++m) {
-    for (const auto& [b, c] : ring[m]) {
-      ring_pairs_.push_back(local(b));
-      ring_pairs_.push_back(local(c));
-    }
-    ring_offsets_.push_back(static_cast<int>(ring_pairs_.size() / 2));
-  }
+  // The marker vertices, their incident faces and the local vertex set.
+  MarkerRings rings = BuildMarkerRings(body, vertex_ids);
+  local_ids_ = std::move(rings.local_ids);
+  marker_local_ = std::move(rings.marker_local);
+  ring_offsets_ = std::move(rings.ring_offsets);
+  ring_pairs_ = std::move(rings.ring_pairs);
   const int nl = static_cast<int>(local_ids_.size());
 
   // Order the local vertices by their number of skinning influences, so that
@@ -198,17 +160,7 @@ void VirtualMarkerSampler::Init(
 
   // Joints: J(beta) = regressor * (template + dirs * beta), precomputed.
   joint_template_ = body.RestJoints(body.template_vertices);
-  joint_shape_dirs_.resize(3 * num_joints_, num_betas_);
-  for (int b = 0; b < num_betas_; ++b) {
-    const Eigen::Map<const Eigen::Matrix3Xd> dir(
-        body.shape_dirs.col(b).data(), 3, nv);
-    const Eigen::MatrixXd joint_dir =
-        body.joint_regressor * dir.transpose();  // J x 3
-    for (int j = 0; j < num_joints_; ++j) {
-      for (int c = 0; c < 3; ++c)
-        joint_shape_dirs_(3 * j + c, b) = joint_dir(j, c);
-    }
-  }
+  joint_shape_dirs_ = JointShapeDirections(body);
 
   // Skinning influences, strongest first, at most kMaxInfluences.
   influence_joint_.assign(static_cast<size_t>(nl) * kMaxInfluences, 0);
@@ -216,25 +168,8 @@ void VirtualMarkerSampler::Init(
   influence_count_.assign(nl, 0);
   std::vector<char> needed(num_joints_, 0);
   for (int l = 0; l < nl; ++l) {
-    std::vector<std::pair<double, int>> w;
-    for (Eigen::SparseMatrix<double, Eigen::RowMajor>::InnerIterator it(
-             body.skinning_weights, local_ids_[l]);
-         it;
-         ++it) {
-      if (it.value() != 0.0)
-        w.emplace_back(it.value(), static_cast<int>(it.col()));
-    }
-    if (static_cast<int>(w.size()) > kMaxInfluences) {
-      // Keep the strongest and renormalise (SMPL-X has up to ~8 influences
-      // with tiny tails).
-      std::sort(w.begin(), w.end(), [](const auto& a, const auto& b) {
-        return a.first > b.first;
-      });
-      w.resize(kMaxInfluences);
-      double total = 0.0;
-      for (const auto& x : w) total += x.first;
-      for (auto& x : w) x.first /= total;
-    }
+    const std::vector<std::pair<double, int>> w =
+        SkinningInfluences(body, local_ids_[l]);
     influence_count_[l] = static_cast<int>(w.size());
     for (size_t k = 0; k < w.size(); ++k) {
       influence_joint_[l * kMaxInfluences + k] = w[k].second;
@@ -271,69 +206,30 @@ void VirtualMarkerSampler::PoseLocal(const Eigen::VectorXd& betas,
   const int nb = static_cast<int>(betas.size());
   const int nl = num_local_vertices();
 
-  // Rest joints for the shape (double).
-  ws->rest_joints = joint_template_;
-  if (nb > 0) {
-    const Eigen::VectorXd offsets = joint_shape_dirs_.leftCols(nb) * betas;
-    ws->rest_joints +=
-        Eigen::Map<const Eigen::Matrix3Xd>(offsets.data(), 3, num_joints_);
-  }
-  // Shaped local vertices (float).
+  // Forward kinematics of the needed joints (double) to 3x4 skinning
+  // transforms (float), and the shaped local vertices (float).
+  const bool correctives = pose_dirs_.size() != 0;
+  ComputeSkinningTransforms(parents_,
+                            joint_template_,
+                            joint_shape_dirs_,
+                            betas,
+                            pose,
+                            posed_joints_,
+                            correctives,
+                            &ws->transforms);
   ws->shaped = template_;
   if (nb > 0) {
     ws->betas = betas.cast<float>();
     ws->shaped.noalias() += shape_dirs_.leftCols(nb) * ws->betas;
   }
-  // Forward kinematics of the needed joints (double), skinning transforms in
-  // float (3x4 row-major).
-  ws->global_rotation.resize(num_joints_);
-  ws->global_translation.resize(num_joints_);
-  ws->rows.resize(3 * static_cast<size_t>(num_joints_),
-                  Eigen::Vector4f::Zero());
-  const bool need_all_rotations = pose_dirs_.size() != 0;
-  if (need_all_rotations) ws->pose_features.resize(9 * (num_joints_ - 1));
-  for (const int j : posed_joints_) {
-    const Eigen::Matrix3d r = Rodrigues(
-        pose.rotations(0, j), pose.rotations(1, j), pose.rotations(2, j));
-    const int p = parents_[j];
-    if (p < 0) {
-      ws->global_rotation[j] = r;
-      ws->global_translation[j] = ws->rest_joints.col(j) + pose.translation;
-    } else {
-      ws->global_rotation[j] = ws->global_rotation[p] * r;
-      ws->global_translation[j] =
-          ws->global_rotation[p] *
-              (ws->rest_joints.col(j) - ws->rest_joints.col(p)) +
-          ws->global_translation[p];
-    }
-    const Eigen::Matrix3d& g = ws->global_rotation[j];
-    const Eigen::Vector3d t =
-        ws->global_translation[j] - g * ws->rest_joints.col(j);
-    for (int row = 0; row < 3; ++row) {
-      ws->rows[3 * j + row] = Eigen::Vector4f(static_cast<float>(g(row, 0)),
-                                              static_cast<float>(g(row, 1)),
-                                              static_cast<float>(g(row, 2)),
-                                              static_cast<float>(t(row)));
-    }
-  }
-  if (need_all_rotations) {
-    for (int j = 1; j < num_joints_; ++j) {
-      const Eigen::Matrix3d r = Rodrigues(
-          pose.rotations(0, j), pose.rotations(1, j), pose.rotations(2, j));
-      for (int a = 0; a < 3; ++a) {
-        for (int b = 0; b < 3; ++b) {
-          ws->pose_features(9 * (j - 1) + 3 * a + b) =
-              static_cast<float>(r(a, b) - (a == b ? 1.0 : 0.0));
-        }
-      }
-    }
-    ws->shaped.noalias() += pose_dirs_ * ws->pose_features;
+  if (correctives) {
+    ws->shaped.noalias() += pose_dirs_ * ws->transforms.pose_features;
   }
   // Linear blend skinning of the local vertices, grouped by influence count.
   ws->posed.resize(3 * nl);
   const float* shaped = ws->shaped.data();
   float* posed = ws->posed.data();
-  const Eigen::Vector4f* rows = ws->rows.data();
+  const Eigen::Vector4f* rows = ws->transforms.rows.data();
   const int* joints = influence_joint_.data();
   const float* weights = influence_weight_.data();
   for (int l = count_begin_[0]; l < count_begin_[1]; ++l) {

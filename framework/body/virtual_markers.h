@@ -12,6 +12,7 @@
 #pragma once
 
 #include "framework/body/body_model.h"
+#include "framework/body/local_skinning.h"
 #include "framework/body/marker_layout.h"
 
 #include <Eigen/Core>
@@ -25,14 +26,9 @@ class VirtualMarkerSampler {
   /// Scratch memory of one Sample() call; one per thread.
   struct Workspace {
     Eigen::VectorXf betas;
-    Eigen::VectorXf shaped;        // 4 * local vertices (x, y, z, 1)
-    Eigen::VectorXf posed;         // 3 * local vertices
-    Eigen::Matrix3Xd rest_joints;  // 3 x J
-    std::vector<Eigen::Vector4f>
-        rows;  // 3 per joint: rows of the 3x4 skinning transform
-    std::vector<Eigen::Matrix3d> global_rotation;
-    std::vector<Eigen::Vector3d> global_translation;
-    Eigen::VectorXf pose_features;
+    Eigen::VectorXf shaped;  // 4 * local vertices (x, y, z, 1)
+    Eigen::VectorXf posed;   // 3 * local vertices
+    SkinningTransforms transforms;
   };
 
   /// Markers on `vertex_ids` (M >= 1) with one distance per marker (metres),
@@ -81,7 +77,7 @@ class VirtualMarkerSampler {
   /// Unnormalised normal (sum of face cross products) at marker m.
   Eigen::Vector3f MarkerNormal(int m, const float* posed) const;
 
-  static constexpr int kMaxInfluences = 4;
+  static constexpr int kMaxInfluences = kMaxSkinningInfluences;
 
   int num_joints_ = 0;
   int num_betas_ = 0;

@@ -556,40 +556,27 @@ struct DatasetReader::Impl {
                     name,
                     begin,
                     begin + count);
-    {
-      Hid space = Check(H5Dget_space(points.get()), H5Sclose, what);
+    // Frames [begin, begin + count) of a dataset whose frames are `n` x
+    // `width` values (width 0: rank 2).
+    auto read_frames = [&](hid_t dataset,
+                           hsize_t width,
+                           hid_t type,
+                           void* dst) {
+      Hid space = Check(H5Dget_space(dataset), H5Sclose, what);
+      const int rank = width > 0 ? 3 : 2;
       const hsize_t start[3] = {static_cast<hsize_t>(begin), 0, 0};
-      const hsize_t size[3] = {static_cast<hsize_t>(count), n, 3};
+      const hsize_t size[3] = {static_cast<hsize_t>(count), n, width};
       CheckStatus(
           H5Sselect_hyperslab(
               space.get(), H5S_SELECT_SET, start, nullptr, size, nullptr),
           what);
-      Hid memory = Check(H5Screate_simple(3, size, nullptr), H5Sclose, what);
-      CheckStatus(H5Dread(points.get(),
-                          H5T_NATIVE_FLOAT,
-                          memory.get(),
-                          space.get(),
-                          H5P_DEFAULT,
-                          out->frame_points(offset)),
-                  what);
-    }
-    {
-      Hid space = Check(H5Dget_space(labels.get()), H5Sclose, what);
-      const hsize_t start[2] = {static_cast<hsize_t>(begin), 0};
-      const hsize_t size[2] = {static_cast<hsize_t>(count), n};
+      Hid memory = Check(H5Screate_simple(rank, size, nullptr), H5Sclose, what);
       CheckStatus(
-          H5Sselect_hyperslab(
-              space.get(), H5S_SELECT_SET, start, nullptr, size, nullptr),
+          H5Dread(dataset, type, memory.get(), space.get(), H5P_DEFAULT, dst),
           what);
-      Hid memory = Check(H5Screate_simple(2, size, nullptr), H5Sclose, what);
-      CheckStatus(H5Dread(labels.get(),
-                          H5T_NATIVE_INT16,
-                          memory.get(),
-                          space.get(),
-                          H5P_DEFAULT,
-                          out->frame_labels(offset)),
-                  what);
-    }
+    };
+    read_frames(points.get(), 3, H5T_NATIVE_FLOAT, out->frame_points(offset));
+    read_frames(labels.get(), 0, H5T_NATIVE_INT16, out->frame_labels(offset));
     const int16_t null_label = static_cast<int16_t>(info.num_labels());
     const int16_t* l = out->frame_labels(offset);
     const int64_t size = count * info.num_points;

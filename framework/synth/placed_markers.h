@@ -9,6 +9,7 @@
 #pragma once
 
 #include "framework/body/body_model.h"
+#include "framework/body/local_skinning.h"
 
 #include <Eigen/Core>
 
@@ -37,11 +38,7 @@ class PlacedMarkerSampler {
   void Select(const std::vector<int>& candidates, Selection* selection) const;
 
   struct Workspace {
-    Eigen::Matrix3Xd rest_joints;
-    std::vector<Eigen::Matrix3d> global_rotation;
-    std::vector<Eigen::Vector3d> global_translation;
-    std::vector<Eigen::Vector4f> rows;  // 3 per joint
-    Eigen::VectorXf pose_features;
+    SkinningTransforms transforms;
     std::vector<float> posed;  // 3 per local vertex (only active ones set)
     std::vector<float> betas;
     std::vector<int> stamp;  // Select() scratch
@@ -60,6 +57,7 @@ class PlacedMarkerSampler {
   int num_betas_ = 0;
   int num_local_ = 0;
   std::vector<int> parents_;
+  std::vector<int> all_joints_;          // 0..J-1
   std::vector<int> candidate_local_;     // local index of each candidate vertex
   std::vector<float> distances_;         // per candidate
   std::vector<int> ring_offsets_;        // per candidate, into ring_pairs_
