@@ -9,6 +9,7 @@ PACKAGES=(
   libfmt-dev libgtest-dev libgmock-dev libbenchmark-dev
   libopenblas-dev libopenblas0-openmp zlib1g-dev
   python3 python3-h5py python3-numpy
+  python3-nbconvert python3-nbformat python3-ipykernel python3-pandas python3-matplotlib
 )
 
 missing=()

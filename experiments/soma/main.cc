@@ -3,6 +3,7 @@
 //
 //   soma                        the default task on the default config
 //   soma <command> [overrides]  a task (train, label, ...) = task=<command>
+//   soma reproduce <name>       a paper table from ablations/<name>.yaml
 //   soma -m a=1,2 b=x,y         a Hydra-style multirun sweep
 #include "framework/config/app.h"
 #include "framework/core/build_info.h"
@@ -19,6 +20,11 @@ int main(int argc, char** argv) {
   std::vector<std::string> args(argv + 1, argv + argc);
   // `soma <command> ...` selects the task config group option <command>.
   if (!args.empty() && soma::GetRegistry<soma::Task>().Has(args.front())) {
+    // `soma reproduce <name>` names the ablation spec positionally.
+    if (args.front() == "reproduce" && args.size() > 1 &&
+        args[1].find('=') == std::string::npos && args[1].front() != '-') {
+      args[1] = "task.ablation=" + args[1];
+    }
     args.front() = "task=" + args.front();
   }
   // The configs/ of the working directory, else the ones of the source tree

@@ -2,6 +2,7 @@
 
 #include "framework/config/node.h"
 #include "framework/config/yaml_io.h"
+#include "framework/core/csv.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 
@@ -16,16 +17,6 @@ namespace soma {
 namespace {
 
 constexpr char kLedgerFile[] = "jobs.yaml";
-
-std::string CsvEscape(const std::string& field) {
-  if (field.find_first_of(",\"\n") == std::string::npos) return field;
-  std::string out = "\"";
-  for (char c : field) {
-    if (c == '"') out += '"';
-    out += c;
-  }
-  return out + "\"";
-}
 
 std::string FormatMetric(double value) {
   if (std::isnan(value)) return "nan";
@@ -170,7 +161,7 @@ void Ledger::Save() const {
 
   std::ostringstream csv;
   csv << "num,status,attempts,wall_time_s,config_hash,overrides";
-  for (const std::string& name : metric_names) csv << "," << CsvEscape(name);
+  for (const std::string& name : metric_names) csv << "," << CsvField(name);
   csv << ",error\n";
   for (const LedgerEntry& e : entries_) {
     std::string overrides;
@@ -179,12 +170,12 @@ void Ledger::Save() const {
     }
     csv << e.num << "," << ToString(e.status) << "," << e.attempts << ","
         << fmt::format("{:.3f}", e.wall_time_s) << "," << e.config_hash << ","
-        << CsvEscape(overrides);
+        << CsvField(overrides);
     for (const std::string& name : metric_names) {
       auto it = e.metrics.find(name);
       csv << "," << (it == e.metrics.end() ? "" : FormatMetric(it->second));
     }
-    csv << "," << CsvEscape(e.error) << "\n";
+    csv << "," << CsvField(e.error) << "\n";
   }
   WriteFileAtomic(sweep_dir_ / "jobs.csv", csv.str());
 }
@@ -254,7 +245,7 @@ void WriteSummary(const std::filesystem::path& sweep_dir,
         "in `seed`); std is blank when only one seed finished.\n\n"
      << "| overrides | seeds done |";
   for (const std::string& name : metric_names) {
-    csv << "," << CsvEscape(name + "_mean") << "," << CsvEscape(name + "_std");
+    csv << "," << CsvField(name + "_mean") << "," << CsvField(name + "_std");
     md << " " << name << " |";
   }
   csv << "\n";
@@ -266,7 +257,7 @@ void WriteSummary(const std::filesystem::path& sweep_dir,
     for (size_t i = 0; i < row.overrides.size(); ++i) {
       overrides += (i ? " " : "") + row.overrides[i];
     }
-    csv << CsvEscape(overrides) << "," << row.num_done << "," << row.num_total;
+    csv << CsvField(overrides) << "," << row.num_done << "," << row.num_total;
     md << "| " << (overrides.empty() ? "(base)" : "`" + overrides + "`")
        << " | " << row.num_done << "/" << row.num_total << " |";
     for (const std::string& name : metric_names) {

@@ -1,5 +1,6 @@
 #include "framework/eval/labeling_metrics.h"
 
+#include "framework/core/csv.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/image.h"
@@ -46,16 +47,6 @@ std::vector<std::string> ClassesOf(const std::vector<LabelPair>& pairs) {
 int IndexOf(const std::vector<std::string>& sorted, const std::string& s) {
   return static_cast<int>(std::lower_bound(sorted.begin(), sorted.end(), s) -
                           sorted.begin());
-}
-
-std::string CsvField(const std::string& s) {
-  if (s.find_first_of(",\"\n") == std::string::npos) return s;
-  std::string out = "\"";
-  for (char c : s) {
-    if (c == '"') out += '"';
-    out += c;
-  }
-  return out + "\"";
 }
 
 }  // namespace

@@ -13,6 +13,7 @@ void RegisterEvalTask(Registry<Task>& registry);
 void RegisterInspectTask(Registry<Task>& registry);
 void RegisterLabelTask(Registry<Task>& registry);
 void RegisterRealismTask(Registry<Task>& registry);
+void RegisterReproduceTask(Registry<Task>& registry);
 void RegisterSynthTask(Registry<Task>& registry);
 void RegisterTrainTask(Registry<Task>& registry);
 
@@ -25,6 +26,7 @@ void RegisterTasks() {
   RegisterInspectTask(registry);
   RegisterLabelTask(registry);
   RegisterRealismTask(registry);
+  RegisterReproduceTask(registry);
   RegisterSynthTask(registry);
   RegisterTrainTask(registry);
   RegisterConfigGroup<Task>("task");

@@ -1,0 +1,100 @@
+// An ablation spec: one paper table or figure as data (ablations/<name>.yaml;
+// format in ablations/README.md). Variants are sets of training overrides,
+// tests are real takes corrupted with one setting of SOMA's protocol and
+// labelled per frame or by tracklet, claims are the paper's qualitative
+// statements as comparisons between cells of the table.
+#pragma once
+
+#include "framework/config/node.h"
+
+#include <filesystem>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace soma {
+
+/// The metrics a reproduction reports per test (per-frame mean over a take,
+/// in percent): accuracy and macro F1 (REFERENCE.md 4).
+inline const std::vector<std::string>& ReproductionMetrics() {
+  static const std::vector<std::string> kMetrics = {"acc", "f1"};
+  return kMetrics;
+}
+
+/// A published number: mean and (if the paper gives one) its ± (the paper's
+/// ± is the std over frames).
+struct PaperValue {
+  double mean = 0.0;
+  std::optional<double> std;
+};
+
+struct AblationVariant {
+  std::string name;   // identifier, [a-z0-9_]
+  std::string label;  // row label in the table
+  /// Training overrides on top of the reproduction's budget (e.g.
+  /// `normalization=log_softmax`).
+  std::vector<std::string> overrides;
+  /// Non-empty: this row cannot run here; the reason is printed instead.
+  std::string skip;
+  /// test name -> metric -> the paper's value.
+  std::map<std::string, std::map<std::string, PaperValue>> paper;
+};
+
+struct AblationTest {
+  std::string name;
+  std::string label;
+  std::string take;     // a C3D file, relative to the data dir
+  std::string setting;  // `soma corrupt` setting, e.g. OC_05_G_03_BT_00
+  bool tracklet = false;
+};
+
+/// "`better` beats `worse` on `test`/`metric`" (kind greater), or "`better`
+/// is within `tolerance` points of `worse`" (kind close). The two sides may
+/// be read on different tests (`better_test`, `worse_test`; default `test`),
+/// e.g. "0 occlusions vs 5 occlusions" for one variant.
+struct AblationClaim {
+  std::string text;
+  std::string test;
+  std::string better_test;  // defaults to `test`
+  std::string worse_test;   // defaults to `test`
+  std::string metric = "acc";
+  std::string kind = "greater";  // greater | close
+  std::string better;
+  std::string worse;
+  double tolerance = 0.0;  // kind close: points
+  /// The paper's gap (better - worse) when the paper gives no table numbers
+  /// for it; otherwise computed from the variants' paper values.
+  std::optional<double> paper_gap;
+  std::string paper_note;  // e.g. "read off Fig. C.1"
+};
+
+struct AblationSpec {
+  std::string name;
+  std::string title;
+  std::string paper_ref;    // e.g. "SOMA (ICCV 2021), Table 5"
+  std::string description;  // what is measured, in a sentence or two
+  int seeds = 3;
+  std::vector<std::string> differences;  // from the paper's setup
+  std::vector<AblationVariant> variants;
+  std::vector<AblationTest> tests;
+  std::vector<AblationClaim> claims;
+
+  const AblationVariant& Variant(const std::string& name) const;
+  const AblationTest& Test(const std::string& name) const;
+};
+
+/// Decodes and validates a spec (unknown keys, duplicate names, claims naming
+/// unknown variants/tests/metrics: ConfigError naming `source` and the key).
+AblationSpec ParseAblationSpec(const ConfigNode& node,
+                               const std::string& source);
+
+/// Loads `<name>.yaml` from `dir`, or `name` itself when it is a path to a
+/// .yaml file. IoError listing the available specs when it does not exist.
+AblationSpec LoadAblationSpec(const std::string& name,
+                              const std::filesystem::path& dir);
+
+/// The spec names (file stems) in `dir`, sorted.
+std::vector<std::string> ListAblationSpecs(const std::filesystem::path& dir);
+
+}  // namespace soma

@@ -1,0 +1,300 @@
+#include "framework/reproduce/report.h"
+
+#include "framework/core/csv.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
+#include <cmath>
+#include <numeric>
+#include <sstream>
+
+namespace soma {
+namespace {
+
+std::optional<double> MeanOf(const std::vector<double>& values) {
+  if (values.empty()) return std::nullopt;
+  return std::accumulate(values.begin(), values.end(), 0.0) /
+         static_cast<double>(values.size());
+}
+
+const CellResult* FindCell(const std::vector<CellResult>& cells,
+                           const std::string& variant,
+                           const std::string& test,
+                           const std::string& metric) {
+  for (const CellResult& cell : cells) {
+    if (cell.variant == variant && cell.test == test && cell.metric == metric)
+      return &cell;
+  }
+  return nullptr;
+}
+
+const PaperValue* FindPaper(const AblationVariant& variant,
+                            const std::string& test,
+                            const std::string& metric) {
+  const auto t = variant.paper.find(test);
+  if (t == variant.paper.end()) return nullptr;
+  const auto m = t->second.find(metric);
+  return m == t->second.end() ? nullptr : &m->second;
+}
+
+std::string Fixed(std::optional<double> value) {
+  return value ? fmt::format("{:.2f}", *value) : "";
+}
+
+std::string Status(const AblationVariant& variant, const CellResult* cell) {
+  if (!variant.skip.empty()) return "skipped";
+  if (cell == nullptr || cell->seeds_done() == 0) return "not run";
+  return cell->seeds_done() < cell->seeds_planned ? "partial" : "done";
+}
+
+/// "91.23 ± 1.05 (3 seeds) · frames ± 8.10".
+std::string OursText(const AblationVariant& variant, const CellResult* cell) {
+  if (!variant.skip.empty()) return "skipped";
+  if (cell == nullptr || cell->seeds_done() == 0) return "not run";
+  std::string text = fmt::format("{:.2f}", *cell->Mean());
+  if (const auto s = cell->SeedStd()) text += fmt::format(" ± {:.2f}", *s);
+  text +=
+      fmt::format(" ({}/{} seeds)", cell->seeds_done(), cell->seeds_planned);
+  return text;
+}
+
+std::string PaperText(const PaperValue* paper) {
+  if (paper == nullptr) return "—";
+  std::string text = fmt::format("{:.2f}", paper->mean);
+  if (paper->std) text += fmt::format(" ± {:.2f}", *paper->std);
+  return text;
+}
+
+std::string Signed(double value) { return fmt::format("{:+.2f}", value); }
+
+std::string Duration(double seconds) {
+  const int minutes = static_cast<int>(std::lround(seconds / 60.0));
+  return minutes >= 60
+             ? fmt::format("{} h {:02d} min", minutes / 60, minutes % 60)
+             : fmt::format("{} min", minutes);
+}
+
+}  // namespace
+
+std::optional<double> CellResult::Mean() const { return MeanOf(seed_means); }
+
+std::optional<double> CellResult::SeedStd() const {
+  if (seed_means.size() < 2) return std::nullopt;
+  const double mean = *Mean();
+  double ss = 0;
+  for (double v : seed_means) ss += (v - mean) * (v - mean);
+  return std::sqrt(ss / static_cast<double>(seed_means.size() - 1));
+}
+
+std::optional<double> CellResult::FrameStd() const {
+  return MeanOf(seed_frame_stds);
+}
+
+std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
+                                      const std::vector<CellResult>& cells) {
+  std::vector<ClaimOutcome> outcomes;
+  for (const AblationClaim& claim : spec.claims) {
+    ClaimOutcome outcome;
+    outcome.claim = &claim;
+    outcome.paper_gap = claim.paper_gap;
+    const PaperValue* paper_better =
+        FindPaper(spec.Variant(claim.better), claim.better_test, claim.metric);
+    const PaperValue* paper_worse =
+        FindPaper(spec.Variant(claim.worse), claim.worse_test, claim.metric);
+    if (!outcome.paper_gap && paper_better && paper_worse) {
+      outcome.paper_gap = paper_better->mean - paper_worse->mean;
+    }
+    const CellResult* better =
+        FindCell(cells, claim.better, claim.better_test, claim.metric);
+    const CellResult* worse =
+        FindCell(cells, claim.worse, claim.worse_test, claim.metric);
+    if (better && worse && better->Mean() && worse->Mean()) {
+      outcome.gap = *better->Mean() - *worse->Mean();
+      if (better->SeedStd() && worse->SeedStd()) {
+        const double sb = *better->SeedStd(), sw = *worse->SeedStd();
+        outcome.gap_se = std::sqrt(sb * sb / better->seeds_done() +
+                                   sw * sw / worse->seeds_done());
+      }
+      const bool pass = claim.kind == "greater"
+                            ? *outcome.gap > 0
+                            : std::abs(*outcome.gap) <= claim.tolerance;
+      outcome.verdict = pass ? "pass" : "fail";
+    } else {
+      outcome.verdict = "not run";
+    }
+    outcomes.push_back(outcome);
+  }
+  return outcomes;
+}
+
+void WriteResultsCsv(const AblationSpec& spec,
+                     const std::vector<CellResult>& cells,
+                     const std::filesystem::path& path) {
+  std::ostringstream csv;
+  csv << "table,variant,variant_label,test,test_label,setting,mode,metric,"
+         "seeds_done,seeds_planned,mean,std_seeds,std_frames,paper,paper_std,"
+         "status,note\n";
+  for (const AblationVariant& variant : spec.variants) {
+    for (const AblationTest& test : spec.tests) {
+      for (const std::string& metric : ReproductionMetrics()) {
+        const CellResult* cell =
+            FindCell(cells, variant.name, test.name, metric);
+        const PaperValue* paper = FindPaper(variant, test.name, metric);
+        csv << fmt::format(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            spec.name,
+            variant.name,
+            CsvField(variant.label),
+            test.name,
+            CsvField(test.label),
+            test.setting,
+            test.tracklet ? "tracklet" : "per-frame",
+            metric,
+            cell ? cell->seeds_done() : 0,
+            cell ? cell->seeds_planned : 0,
+            Fixed(cell ? cell->Mean() : std::nullopt),
+            Fixed(cell ? cell->SeedStd() : std::nullopt),
+            Fixed(cell ? cell->FrameStd() : std::nullopt),
+            paper ? fmt::format("{:.2f}", paper->mean) : "",
+            paper ? Fixed(paper->std) : "",
+            Status(variant, cell),
+            CsvField(variant.skip));
+      }
+    }
+  }
+  WriteFileAtomic(path, csv.str());
+}
+
+void WriteResultsMarkdown(const AblationSpec& spec,
+                          const std::vector<CellResult>& cells,
+                          const ReportContext& context,
+                          const std::filesystem::path& path) {
+  std::ostringstream md;
+  const bool complete = context.models_done == context.models_planned;
+  md << "# " << spec.title << "\n\n";
+  if (!complete) {
+    md << fmt::format(
+        "**PARTIAL: {} of {} trainings finished.** Cells marked \"not run\" "
+        "or with fewer seeds than planned are incomplete; re-run the "
+        "command below to continue.\n\n",
+        context.models_done,
+        context.models_planned);
+  }
+  if (!spec.description.empty()) md << spec.description << "\n\n";
+  md << "| | |\n|---|---|\n";
+  md << "| reproduces | " << spec.paper_ref << " |\n";
+  md << "| command | `" << context.command << "` |\n";
+  md << "| training budget (every model) | `"
+     << fmt::format("{}", fmt::join(context.budget, " ")) << "` |\n";
+  md << "| seeds | " << spec.seeds << " training seeds per variant |\n";
+  md << "| test data | ";
+  for (size_t i = 0; i < spec.tests.size(); ++i) {
+    const AblationTest& t = spec.tests[i];
+    md << (i ? "; " : "")
+       << fmt::format(
+              "{}: `{}` corrupted as `{}`, {}",
+              t.name,
+              t.take,
+              t.setting,
+              t.tracklet ? "tracklet labelling" : "per-frame labelling");
+  }
+  md << " |\n";
+  md << fmt::format(
+      "| compute | {} summed over the commands run ({} of "
+      "{} trainings finished) |\n",
+      Duration(context.compute_s),
+      context.models_done,
+      context.models_planned);
+  md << "| machine | " << context.machine << " |\n";
+  md << "| commit | " << context.commit << " |\n";
+  md << "| date | " << context.date << " |\n\n";
+
+  md << "**Values** are per-frame accuracy and F1 in % (REFERENCE.md 4: the "
+        "mean over the frames of a take). **ours** = mean over training "
+        "seeds ± sample std over seeds; **frames ±** = the std over frames "
+        "(mean over seeds), the spread the paper reports; **paper** = the "
+        "published mean ± std over frames.\n\n";
+  md << "| variant | test | acc ours | acc frames ± | acc paper | F1 ours | "
+        "F1 frames ± | F1 paper |\n";
+  md << "|---|---|---|---|---|---|---|---|\n";
+  for (const AblationVariant& variant : spec.variants) {
+    for (const AblationTest& test : spec.tests) {
+      md << "| " << variant.label << " | " << test.label;
+      for (const std::string& metric : ReproductionMetrics()) {
+        const CellResult* cell =
+            FindCell(cells, variant.name, test.name, metric);
+        const std::optional<double> frame_std =
+            cell && variant.skip.empty() ? cell->FrameStd() : std::nullopt;
+        md << " | " << OursText(variant, cell) << " | "
+           << (frame_std ? fmt::format("{:.2f}", *frame_std) : "") << " | "
+           << PaperText(FindPaper(variant, test.name, metric));
+      }
+      md << " |\n";
+    }
+  }
+  bool any_skip = false;
+  for (const AblationVariant& variant : spec.variants) {
+    if (variant.skip.empty()) continue;
+    if (!any_skip) md << "\nSkipped rows:\n\n";
+    any_skip = true;
+    md << "- **" << variant.label << "**: " << variant.skip << "\n";
+  }
+
+  if (!spec.claims.empty()) {
+    md << "\n## The paper's claims\n\n";
+    md << "| claim | test, metric | paper gap | our gap | verdict |\n";
+    md << "|---|---|---|---|---|\n";
+    for (const ClaimOutcome& outcome : CheckClaims(spec, cells)) {
+      const AblationClaim& c = *outcome.claim;
+      std::string paper = outcome.paper_gap ? Signed(*outcome.paper_gap) : "";
+      if (!c.paper_note.empty()) {
+        paper += (paper.empty() ? "" : " ") + ("(" + c.paper_note + ")");
+      }
+      const bool same_test = c.better_test == c.worse_test;
+      const std::string better =
+          same_test ? c.better : c.better + "@" + c.better_test;
+      const std::string worse =
+          same_test ? c.worse : c.worse + "@" + c.worse_test;
+      const std::string rule =
+          c.kind == "greater"
+              ? fmt::format("{} − {} > 0", better, worse)
+              : fmt::format("|{} − {}| ≤ {:.1f}", better, worse, c.tolerance);
+      std::string ours = outcome.gap ? Signed(*outcome.gap) : "—";
+      if (outcome.gap_se) {
+        ours += fmt::format(" ± {:.2f} (s.e.)", *outcome.gap_se);
+      }
+      std::string verdict = "**" + outcome.verdict + "**";
+      if (outcome.gap && outcome.gap_se &&
+          std::abs(*outcome.gap) < 2 * *outcome.gap_se) {
+        verdict += " (within seed noise)";
+      }
+      const std::string tests = same_test
+                                    ? spec.Test(c.test).label
+                                    : spec.Test(c.better_test).label + " vs " +
+                                          spec.Test(c.worse_test).label;
+      md << fmt::format("| {} ({}) | {}, {} | {} | {} | {} |\n",
+                        c.text,
+                        rule,
+                        tests,
+                        c.metric,
+                        paper.empty() ? "—" : paper,
+                        ours,
+                        verdict);
+    }
+  }
+  if (!spec.differences.empty()) {
+    md << "\n## Differences from the paper's setup\n\n";
+    for (const std::string& d : spec.differences) md << "- " << d << "\n";
+  }
+  md << "\nEvery number above comes from the runs under the reproduction's "
+        "root directory (`jobs.yaml` there lists each training with its "
+        "overrides, status and metrics; `commands.sh` every command). The "
+        "paper's numbers are typed in from the paper in `ablations/"
+     << spec.name << ".yaml` and appear only in the paper columns.\n";
+  WriteFileAtomic(path, md.str());
+}
+
+}  // namespace soma

@@ -1,0 +1,81 @@
+// The results table of a reproduction: our numbers (mean ± std over training
+// seeds, and separately the mean over seeds of the std over frames) beside the
+// paper's, the paper's claims checked with the measured gap, and a header
+// that says what was run and how it differs from the paper.
+//
+// Files (written atomically):
+//  - `<name>.csv`: one row per (variant, test, metric): table, variant,
+//    variant_label, test, test_label, setting, mode, metric, seeds_done,
+//    seeds_planned, mean, std_seeds, std_frames, paper, paper_std, status
+//    (done | partial | not run | skipped), note. Values in percent; empty
+//    cells where there is no value.
+//  - `<name>.md`: the header, the table, the claims, the differences.
+#pragma once
+
+#include "framework/reproduce/ablation_spec.h"
+
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace soma {
+
+/// Our values for one (variant, test, metric): one entry per finished seed.
+struct CellResult {
+  std::string variant;
+  std::string test;
+  std::string metric;
+  std::vector<double> seed_means;       // per-frame mean of each seed, %
+  std::vector<double> seed_frame_stds;  // std over frames of each seed, %
+  int seeds_planned = 0;
+
+  int seeds_done() const { return static_cast<int>(seed_means.size()); }
+  /// Mean over seeds; nullopt without a finished seed.
+  std::optional<double> Mean() const;
+  /// Sample std (ddof 1) over seeds; nullopt with fewer than two seeds.
+  std::optional<double> SeedStd() const;
+  /// Mean over seeds of the std over frames.
+  std::optional<double> FrameStd() const;
+};
+
+struct ClaimOutcome {
+  const AblationClaim* claim = nullptr;
+  std::optional<double> gap;  // ours: better - worse, points
+  /// Standard error of `gap` from the seed spread of both sides
+  /// (sqrt(s_b^2/n_b + s_w^2/n_w)); nullopt with fewer than two seeds.
+  std::optional<double> gap_se;
+  std::optional<double> paper_gap;  // the paper's, when known
+  std::string verdict;              // pass | fail | not run
+};
+
+/// Checks every claim of `spec` on `cells` (greater: gap > 0; close: |gap| <=
+/// tolerance). A claim whose cells have no finished seed is "not run". The
+/// verdict is about the means; the markdown adds "within seed noise" when
+/// |gap| < 2 standard errors.
+std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
+                                      const std::vector<CellResult>& cells);
+
+/// What the header states.
+struct ReportContext {
+  std::string command;  // the exact command line
+  std::string commit;   // git SHA (+ "-dirty")
+  std::string date;
+  std::string machine;              // host, cores
+  std::vector<std::string> budget;  // overrides of every training
+  std::string data_dir;             // where the takes were read
+  double compute_s = 0;             // summed wall time of all commands
+  int models_done = 0;
+  int models_planned = 0;
+};
+
+void WriteResultsCsv(const AblationSpec& spec,
+                     const std::vector<CellResult>& cells,
+                     const std::filesystem::path& path);
+
+void WriteResultsMarkdown(const AblationSpec& spec,
+                          const std::vector<CellResult>& cells,
+                          const ReportContext& context,
+                          const std::filesystem::path& path);
+
+}  // namespace soma

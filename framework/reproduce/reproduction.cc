@@ -1,0 +1,447 @@
+#include "framework/reproduce/reproduction.h"
+
+#include "framework/config/ledger.h"
+#include "framework/config/yaml_io.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+#include "framework/core/logging.h"
+#include "framework/core/process.h"
+#include "framework/core/progress.h"
+#include "framework/core/random.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <deque>
+#include <set>
+#include <sstream>
+
+namespace soma {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string Hash8(const std::vector<std::string>& parts) {
+  std::string joined;
+  for (const std::string& p : parts) joined += p + "\n";
+  return fmt::format("{:016x}", Fnv1a64(joined)).substr(0, 8);
+}
+
+/// A readable directory name for a list of overrides.
+std::string Slug(const std::vector<std::string>& overrides) {
+  std::string slug;
+  for (const std::string& o : overrides) {
+    if (!slug.empty()) slug += '_';
+    for (char c : o) {
+      const bool keep = std::isalnum(static_cast<unsigned char>(c)) ||
+                        c == '.' || c == '-' || c == '_';
+      slug += keep ? c : '-';
+    }
+  }
+  if (slug.empty()) slug = "base";
+  if (slug.size() > 48) slug.resize(48);
+  return slug;
+}
+
+std::string Mode(const AblationTest& test) {
+  return test.tracklet ? "tracklet" : "perframe";
+}
+
+fs::path CorruptDir(const AblationTest& test,
+                    const ReproductionOptions& options) {
+  return options.root / "testdata" /
+         fmt::format("{}_{}_seed{}",
+                     fs::path(test.take).stem().string(),
+                     test.setting,
+                     options.test_seed);
+}
+
+std::string RunDirArg(const fs::path& dir) {
+  return "hydra.run.dir=" + dir.string();
+}
+
+std::map<std::string, double> ReadMetrics(const fs::path& run_dir) {
+  std::map<std::string, double> metrics;
+  const fs::path path = run_dir / "metrics.yaml";
+  if (!fs::exists(path)) return metrics;
+  const ConfigNode node = ParseYaml(ReadFile(path), path.string());
+  if (!node.IsMap()) return metrics;
+  for (const auto& [name, value] : node.entries()) {
+    if (value.IsScalar() && !value.IsNull() && !value.IsString()) {
+      metrics[name] = value.AsDouble();
+    }
+  }
+  return metrics;
+}
+
+/// The one-line error a failed command left, or a generic line.
+std::string CommandError(const PlannedCommand& command, int exit_code) {
+  const fs::path error = command.run_dir / "error.txt";
+  std::string text;
+  if (fs::exists(error)) {
+    text = ReadFile(error);
+    while (!text.empty() && text.back() == '\n') text.pop_back();
+  } else {
+    text = fmt::format("exit code {} (log: {})",
+                       exit_code,
+                       (command.run_dir / "stdout.txt").string());
+  }
+  return fmt::format("{}: {}", command.name, text);
+}
+
+/// Removes what a previous, unfinished attempt left that would make the
+/// command look done or failed (the run dir itself is kept: a training
+/// resumes from its checkpoints).
+void PrepareRunDir(const PlannedCommand& command) {
+  CreateDirectories(command.run_dir);
+  std::error_code ec;
+  fs::remove(command.run_dir / "error.txt", ec);
+  fs::remove(command.run_dir / "metrics.yaml", ec);
+}
+
+ProcessSpec Spec(const PlannedCommand& command) {
+  return {command.argv, command.run_dir / "stdout.txt"};
+}
+
+/// The ledger's metrics of a model: the training's and each test's.
+std::map<std::string, double> ModelMetrics(const PlannedModel& model) {
+  std::map<std::string, double> out;
+  for (const auto& [name, value] : ReadMetrics(model.dir)) {
+    if (name == "val_acc" || name == "val_f1" || name == "epochs") {
+      out["train/" + name] = value;
+    }
+  }
+  for (const auto& [test, dir] : model.eval_dirs) {
+    const auto metrics = ReadMetrics(dir);
+    for (const char* key : {"acc_mean", "f1_mean"}) {
+      if (const auto it = metrics.find(key); it != metrics.end()) {
+        out[test + "/" + key] = it->second;
+      }
+    }
+  }
+  return out;
+}
+
+}  // namespace
+
+bool PlannedCommand::Done() const {
+  return fs::exists(run_dir / "metrics.yaml") &&
+         !fs::exists(run_dir / "error.txt");
+}
+
+ReproductionPlan PlanReproduction(const AblationSpec& spec,
+                                  const ReproductionOptions& options) {
+  ReproductionPlan plan;
+  plan.dir = options.root / spec.name;
+  plan.seeds = options.seeds > 0 ? options.seeds : spec.seeds;
+  const std::string exe = options.executable.string();
+
+  std::set<fs::path> corrupt_dirs;
+  for (const AblationTest& test : spec.tests) {
+    const fs::path dir = CorruptDir(test, options);
+    if (!corrupt_dirs.insert(dir).second) continue;
+    PlannedCommand command;
+    command.name = fmt::format("corrupt {} {}", test.take, test.setting);
+    command.run_dir = dir;
+    command.argv = {
+        exe,
+        "corrupt",
+        fmt::format("task.files=[{}]", (options.data_dir / test.take).string()),
+        fmt::format("task.settings=[{}]", test.setting),
+        fmt::format("seed={}", options.test_seed),
+        RunDirArg(dir)};
+    plan.corrupt.push_back(command);
+  }
+
+  // Seed-major order: every variant gets its first seed before any gets a
+  // second, so a partial table already has every row.
+  for (int seed = 0; seed < plan.seeds; ++seed) {
+    for (const AblationVariant& variant : spec.variants) {
+      if (!variant.skip.empty()) continue;
+      std::vector<std::string> overrides = options.budget;
+      overrides.insert(
+          overrides.end(), variant.overrides.begin(), variant.overrides.end());
+      const std::string hash = Hash8(overrides);
+      const fs::path variant_dir =
+          options.root / "models" / (Slug(variant.overrides) + "-" + hash);
+      PlannedModel model;
+      model.variant = variant.name;
+      model.seed = seed;
+      model.hash = hash;
+      model.train_overrides = overrides;
+      model.train_overrides.push_back(fmt::format("seed={}", seed));
+      model.dir = variant_dir / fmt::format("seed{}", seed);
+
+      PlannedCommand train;
+      train.name = fmt::format("train {} seed {}", variant.name, seed);
+      train.run_dir = model.dir;
+      train.argv = {exe, "train"};
+      train.argv.insert(train.argv.end(),
+                        model.train_overrides.begin(),
+                        model.train_overrides.end());
+      train.argv.push_back(RunDirArg(model.dir));
+      model.commands.push_back(train);
+
+      const fs::path checkpoint = model.dir / "checkpoints" / "best.pt";
+      for (const AblationTest& test : spec.tests) {
+        const std::string stem = fs::path(test.take).stem().string();
+        const fs::path test_dir = model.dir / "tests" /
+                                  fmt::format("{}_{}_{}_seed{}",
+                                              stem,
+                                              test.setting,
+                                              Mode(test),
+                                              options.test_seed);
+        const fs::path corrupted = CorruptDir(test, options) / test.setting;
+        PlannedCommand label;
+        label.name = fmt::format(
+            "label {} seed {} on {}", variant.name, seed, test.name);
+        label.run_dir = test_dir / "label";
+        label.argv = {exe,
+                      "label",
+                      "task.input=" + (corrupted / (stem + ".c3d")).string(),
+                      "task.checkpoint=" + checkpoint.string(),
+                      fmt::format("task.tracklet={}", test.tracklet),
+                      fmt::format("task.inference.seed={}", options.test_seed),
+                      "threads=1",
+                      RunDirArg(label.run_dir)};
+        PlannedCommand eval;
+        eval.name =
+            fmt::format("eval {} seed {} on {}", variant.name, seed, test.name);
+        eval.run_dir = test_dir / "eval";
+        eval.argv = {
+            exe,
+            "eval",
+            "task.gt=" + (corrupted / (stem + ".h5")).string(),
+            "task.rec=" + (label.run_dir / (stem + "_labeled.c3d")).string(),
+            RunDirArg(eval.run_dir)};
+        model.commands.push_back(label);
+        model.commands.push_back(eval);
+        model.eval_dirs[test.name] = eval.run_dir;
+      }
+      plan.models.push_back(std::move(model));
+    }
+  }
+  return plan;
+}
+
+void WriteCommandsScript(const ReproductionPlan& plan,
+                         const fs::path& working_dir) {
+  std::ostringstream sh;
+  sh << "#!/usr/bin/env bash\n"
+        "# Every command of this reproduction, in the order `soma reproduce`\n"
+        "# runs them (models may run in parallel). A command whose run dir\n"
+        "# holds metrics.yaml and no error.txt is done and is skipped.\n"
+        "set -euo pipefail\n";
+  sh << "cd " << ShellQuote({working_dir.string()}) << "\n\n";
+  for (const PlannedCommand& c : plan.corrupt) {
+    sh << ShellQuote(c.argv) << "\n";
+  }
+  for (const PlannedModel& model : plan.models) {
+    sh << "\n# " << model.variant << " seed " << model.seed << "\n";
+    for (const PlannedCommand& c : model.commands) {
+      sh << ShellQuote(c.argv) << "\n";
+    }
+  }
+  CreateDirectories(plan.dir);
+  WriteFileAtomic(plan.dir / "commands.sh", sh.str());
+}
+
+ReproductionRun RunReproduction(
+    const ReproductionPlan& plan,
+    const ReproductionOptions& options,
+    bool progress,
+    const std::function<void()>& on_model_finished) {
+  CreateDirectories(plan.dir);
+  int64_t pending = 0;
+  for (const PlannedCommand& c : plan.corrupt) pending += !c.Done();
+  for (const PlannedModel& m : plan.models) {
+    for (const PlannedCommand& c : m.commands) pending += !c.Done();
+  }
+  SOMA_LOG(INFO,
+           "reproduce: {} models ({} commands to run), {} at a time; runs "
+           "under {}",
+           plan.models.size(),
+           pending,
+           options.jobs,
+           options.root.string());
+  ProgressBar bar(pending,
+                  {.label = "reproduce",
+                   .unit = "commands",
+                   .plain_interval_s = 60,
+                   .enabled = progress});
+
+  // Shared test data first; nothing can be evaluated without it.
+  for (const PlannedCommand& c : plan.corrupt) {
+    if (c.Done()) continue;
+    PrepareRunDir(c);
+    const int code = RunProcess(Spec(c));
+    if (code != 0) throw Error(CommandError(c, code));
+    bar.Update(1, c.name);
+  }
+
+  Ledger ledger = Ledger::Load(plan.dir);
+  ReproductionRun run;
+  struct Slot {
+    size_t model = 0;
+    size_t command = 0;
+  };
+  std::deque<size_t> queue;
+  for (size_t i = 0; i < plan.models.size(); ++i) {
+    const PlannedModel& m = plan.models[i];
+    LedgerEntry& entry = ledger.Entry(static_cast<int>(i));
+    if (entry.config_hash != m.hash + fmt::format("/{}", m.seed)) {
+      entry = LedgerEntry{};
+      entry.num = static_cast<int>(i);
+    }
+    entry.overrides = m.train_overrides;
+    entry.config_hash = m.hash + fmt::format("/{}", m.seed);
+    entry.dir = m.dir.string();
+    const bool done = std::all_of(
+        m.commands.begin(), m.commands.end(), [](const PlannedCommand& c) {
+          return c.Done();
+        });
+    if (done) {
+      entry.status = JobStatus::kDone;
+      entry.error.clear();
+      entry.metrics = ModelMetrics(m);
+      ++run.models_done;
+    } else {
+      entry.status = JobStatus::kPending;
+      queue.push_back(i);
+    }
+  }
+  ledger.Save();
+
+  ProcessPool pool(options.jobs);
+  std::map<int64_t, Slot> running;  // process id -> slot
+  // Starts the next unfinished command of `slot.model`; false if none left.
+  auto start_next = [&](Slot slot) {
+    const PlannedModel& m = plan.models[slot.model];
+    while (slot.command < m.commands.size() &&
+           m.commands[slot.command].Done()) {
+      ++slot.command;
+    }
+    if (slot.command == m.commands.size()) return false;
+    const PlannedCommand& c = m.commands[slot.command];
+    PrepareRunDir(c);
+    SOMA_LOG(INFO, "reproduce: {}", c.name);
+    running[pool.Start(Spec(c))] = slot;
+    return true;
+  };
+  auto finish_model = [&](size_t i, bool ok, const std::string& error) {
+    LedgerEntry& entry = ledger.Entry(static_cast<int>(i));
+    entry.status = ok ? JobStatus::kDone : JobStatus::kFailed;
+    entry.error = error;
+    entry.metrics = ModelMetrics(plan.models[i]);
+    ledger.Save();
+    if (ok) {
+      ++run.models_done;
+    } else {
+      ++run.models_failed;
+      run.errors.push_back(error);
+      SOMA_LOG(ERROR, "reproduce: {}", error);
+    }
+    if (on_model_finished) on_model_finished();
+  };
+  auto fill = [&]() {
+    while (pool.num_running() < pool.max_parallel() && !queue.empty()) {
+      const size_t i = queue.front();
+      queue.pop_front();
+      LedgerEntry& entry = ledger.Entry(static_cast<int>(i));
+      entry.status = JobStatus::kRunning;
+      ++entry.attempts;
+      ledger.Save();
+      if (!start_next({i, 0})) finish_model(i, true, "");
+    }
+  };
+
+  fill();
+  while (std::optional<ProcessResult> result = pool.WaitAny()) {
+    const Slot slot = running.at(result->id);
+    running.erase(result->id);
+    const PlannedModel& m = plan.models[slot.model];
+    const PlannedCommand& c = m.commands[slot.command];
+    LedgerEntry& entry = ledger.Entry(static_cast<int>(slot.model));
+    entry.wall_time_s += result->wall_time_s;
+    bar.Update(1, c.name);
+    if (result->exit_code != 0 || !c.Done()) {
+      finish_model(slot.model, false, CommandError(c, result->exit_code));
+    } else {
+      SOMA_LOG(INFO,
+               "reproduce: {} finished in {:.0f} s",
+               c.name,
+               result->wall_time_s);
+      if (!start_next({slot.model, slot.command + 1})) {
+        finish_model(slot.model, true, "");
+      } else {
+        ledger.Save();
+      }
+    }
+    fill();
+  }
+  bar.Finish();
+  for (const LedgerEntry& e : ledger.entries()) run.compute_s += e.wall_time_s;
+  return run;
+}
+
+ReproductionRun SummarizeLedger(const ReproductionPlan& plan) {
+  ReproductionRun run;
+  const Ledger ledger = Ledger::Load(plan.dir);
+  for (size_t i = 0; i < plan.models.size(); ++i) {
+    const PlannedModel& m = plan.models[i];
+    const bool done = std::all_of(
+        m.commands.begin(), m.commands.end(), [](const PlannedCommand& c) {
+          return c.Done();
+        });
+    run.models_done += done;
+    if (const LedgerEntry* e = ledger.Find(static_cast<int>(i))) {
+      run.compute_s += e->wall_time_s;
+      if (e->status == JobStatus::kFailed) {
+        ++run.models_failed;
+        run.errors.push_back(e->error);
+      }
+    }
+  }
+  return run;
+}
+
+std::vector<CellResult> CollectResults(const AblationSpec& spec,
+                                       const ReproductionPlan& plan) {
+  std::vector<CellResult> cells;
+  for (const AblationVariant& variant : spec.variants) {
+    for (const AblationTest& test : spec.tests) {
+      for (const std::string& metric : ReproductionMetrics()) {
+        CellResult cell;
+        cell.variant = variant.name;
+        cell.test = test.name;
+        cell.metric = metric;
+        cell.seeds_planned = variant.skip.empty() ? plan.seeds : 0;
+        for (const PlannedModel& m : plan.models) {
+          if (m.variant != variant.name) continue;
+          const fs::path& dir = m.eval_dirs.at(test.name);
+          const PlannedCommand* eval = nullptr;
+          for (const PlannedCommand& c : m.commands) {
+            if (c.run_dir == dir) eval = &c;
+          }
+          if (eval == nullptr || !eval->Done()) continue;
+          const auto metrics = ReadMetrics(dir);
+          const auto mean = metrics.find(metric + "_mean");
+          const auto std = metrics.find(metric + "_std");
+          if (mean == metrics.end() || std == metrics.end()) {
+            throw IoError(fmt::format(
+                "{}: no {}_mean/{}_std; not a `soma eval` run directory",
+                (dir / "metrics.yaml").string(),
+                metric,
+                metric));
+          }
+          cell.seed_means.push_back(100.0 * mean->second);
+          cell.seed_frame_stds.push_back(100.0 * std->second);
+        }
+        cells.push_back(std::move(cell));
+      }
+    }
+  }
+  return cells;
+}
+
+}  // namespace soma

@@ -1,0 +1,109 @@
+// A reproduction: the `soma` commands that produce one ablation spec's table,
+// planned, run and collected.
+//
+// Every model (variant × seed) is one job: `soma train` with the
+// reproduction's budget and the variant's overrides, then for every test a
+// `soma label` of the corrupted take and a `soma eval` against its ground
+// truth. The corrupted takes (`soma corrupt`, one per take × setting, fixed
+// seed) are made first and shared by every model. Each command runs in its
+// own run directory and is done when that directory holds `metrics.yaml` and
+// no `error.txt`, so re-running the reproduction skips finished commands and
+// resumes an interrupted training from its last checkpoint. Model
+// directories are keyed by a hash of their training overrides, so tables that
+// share a model (Table 1's B+C+G row and Table 5's base) train it once.
+//
+//   <root>/models/<slug>-<hash>/seed<k>/        a `soma train` run dir
+//       tests/<take>_<setting>_<mode>/label/      `soma label` run dir
+//       tests/<take>_<setting>_<mode>/eval/       `soma eval` run dir
+//   <root>/testdata/<take>_<setting>_seed<s>/   a `soma corrupt` run dir
+//   <root>/<name>/jobs.yaml, jobs.csv            the ledger (one job per model)
+//   <root>/<name>/commands.sh                    every command, in order
+#pragma once
+
+#include "framework/reproduce/ablation_spec.h"
+#include "framework/reproduce/report.h"
+
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+namespace soma {
+
+struct ReproductionOptions {
+  std::filesystem::path root = "results/reproduce";
+  std::filesystem::path data_dir = "../shared/data";
+  /// Overrides of every training (the model scale and the training length).
+  std::vector<std::string> budget = {"scale=cpu", "train.max_epochs=20"};
+  int seeds = 0;           // 0: the spec's number of seeds
+  int jobs = 2;            // models trained/evaluated at the same time
+  uint64_t test_seed = 0;  // seed of the corruption and of inference
+  /// The `soma` executable the commands run.
+  std::filesystem::path executable;
+};
+
+/// One `soma` command with its run directory (`hydra.run.dir`).
+struct PlannedCommand {
+  std::string name;  // e.g. "train log_softmax seed 1"
+  std::vector<std::string> argv;
+  std::filesystem::path run_dir;
+  /// Finished successfully: `metrics.yaml` and no `error.txt`.
+  bool Done() const;
+};
+
+struct PlannedModel {
+  std::string variant;
+  int seed = 0;
+  std::vector<std::string> train_overrides;  // budget + variant + seed
+  std::string hash;                          // of budget + variant overrides
+  std::filesystem::path dir;                 // the training run dir
+  std::vector<PlannedCommand> commands;      // train, then label/eval pairs
+  std::map<std::string, std::filesystem::path> eval_dirs;  // test -> eval run
+};
+
+struct ReproductionPlan {
+  std::filesystem::path dir;  // <root>/<name>
+  std::vector<PlannedCommand> corrupt;
+  std::vector<PlannedModel> models;  // skipped variants are not planned
+  int seeds = 0;
+};
+
+/// Pure: builds the commands; touches no file.
+ReproductionPlan PlanReproduction(const AblationSpec& spec,
+                                  const ReproductionOptions& options);
+
+/// Writes `<plan.dir>/commands.sh`: every command of the plan, in order.
+void WriteCommandsScript(const ReproductionPlan& plan,
+                         const std::filesystem::path& working_dir);
+
+struct ReproductionRun {
+  int models_done = 0;
+  int models_failed = 0;
+  double compute_s = 0;             // summed wall time, all attempts
+  std::vector<std::string> errors;  // one line per failed model
+};
+
+/// Runs every command that is not done: the corruptions first (a failure
+/// there throws), then the models, `jobs` at a time, each model's commands in
+/// order. A failing command fails its model (recorded in the ledger with the
+/// command's error) and the others go on.
+/// `on_model_finished` (optional) is called after each model finishes or
+/// fails, e.g. to rewrite the results table as it fills.
+ReproductionRun RunReproduction(
+    const ReproductionPlan& plan,
+    const ReproductionOptions& options,
+    bool progress,
+    const std::function<void()>& on_model_finished = {});
+
+/// Reads the finished evaluations: one CellResult per (planned variant, test,
+/// metric), plus empty cells for skipped variants.
+std::vector<CellResult> CollectResults(const AblationSpec& spec,
+                                       const ReproductionPlan& plan);
+
+/// Models whose every command is done, and the summed wall time recorded in
+/// the ledger.
+ReproductionRun SummarizeLedger(const ReproductionPlan& plan);
+
+}  // namespace soma

@@ -1,0 +1,172 @@
+// `soma reproduce <name>`: runs one paper table or figure from its ablation
+// spec (ablations/<name>.yaml) and writes results/<name>.md and .csv — our
+// numbers over training seeds beside the paper's, with the paper's claims
+// checked. Resumable: re-running the same command skips every finished
+// command and resumes interrupted trainings (framework/reproduce/
+// reproduction.h). `task.mode=plan` only writes commands.sh; `report` only
+// rebuilds the table from what has finished.
+#include "framework/config/decode.h"
+#include "framework/core/build_info.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+#include "framework/core/logging.h"
+#include "framework/core/process.h"
+#include "framework/core/provenance.h"
+#include "framework/registry/registry.h"
+#include "framework/reproduce/reproduction.h"
+#include "framework/tasks/task.h"
+
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+
+#include <thread>
+
+namespace soma {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct ReproduceTaskOptions {
+  std::string ablation;
+  std::string ablations_dir = "ablations";
+  std::string results_dir = "results";
+  std::string mode = "run";  // run | plan | report
+  ReproductionOptions reproduction;
+};
+
+/// `dir` as given if it exists (relative to the working directory), else
+/// the same path in the source tree this binary was built from.
+fs::path LocateDir(const std::string& dir) {
+  if (fs::is_directory(dir) || fs::path(dir).is_absolute()) return dir;
+  const fs::path in_source = fs::path(SOMA_SOURCE_DIR) / dir;
+  return fs::is_directory(in_source) ? in_source : fs::path(dir);
+}
+
+class ReproduceTask : public Task {
+ public:
+  explicit ReproduceTask(ReproduceTaskOptions options)
+      : options_(std::move(options)) {}
+
+  void Run(const ConfigNode&, RunContext& ctx) override {
+    const AblationSpec spec =
+        LoadAblationSpec(options_.ablation, LocateDir(options_.ablations_dir));
+    ReproductionOptions reproduction = options_.reproduction;
+    reproduction.executable = CurrentExecutable();
+    const ReproductionPlan plan = PlanReproduction(spec, reproduction);
+    WriteCommandsScript(plan, fs::current_path());
+    SOMA_LOG(INFO,
+             "reproduce {}: {} variants x {} seeds, {} tests; commands in {}",
+             spec.name,
+             spec.variants.size(),
+             plan.seeds,
+             spec.tests.size(),
+             (plan.dir / "commands.sh").string());
+    if (options_.mode == "plan") return;
+
+    const ReportContext context = MakeContext(ctx, reproduction, plan);
+    // The table is rewritten after every model, so an interrupted
+    // reproduction leaves a (marked) partial table behind.
+    auto write_report = [&]() {
+      ReportContext now = context;
+      const ReproductionRun ledger = SummarizeLedger(plan);
+      now.compute_s = ledger.compute_s;
+      now.models_done = ledger.models_done;
+      const std::vector<CellResult> cells = CollectResults(spec, plan);
+      const fs::path results = options_.results_dir;
+      CreateDirectories(results);
+      WriteResultsCsv(spec, cells, results / (spec.name + ".csv"));
+      WriteResultsMarkdown(spec, cells, now, results / (spec.name + ".md"));
+      return now;
+    };
+    const ReproductionRun run =
+        options_.mode == "run"
+            ? RunReproduction(plan, reproduction, true, [&] { write_report(); })
+            : SummarizeLedger(plan);
+    const ReportContext final_context = write_report();
+    SOMA_LOG(INFO,
+             "reproduce {}: {} of {} models done; wrote {}/{}.md and .csv",
+             spec.name,
+             final_context.models_done,
+             final_context.models_planned,
+             options_.results_dir,
+             spec.name);
+    ctx.ReportMetric("models_done", final_context.models_done);
+    ctx.ReportMetric("models_planned", final_context.models_planned);
+    ctx.ReportMetric("models_failed", run.models_failed);
+    ctx.ReportMetric("compute_h", final_context.compute_s / 3600.0);
+    if (run.models_failed > 0) {
+      throw Error(fmt::format(
+          "reproduce {}: {} model(s) failed (table written with what "
+          "finished); first: {}",
+          spec.name,
+          run.models_failed,
+          run.errors.front()));
+    }
+  }
+
+ private:
+  ReportContext MakeContext(const RunContext& ctx,
+                            const ReproductionOptions& reproduction,
+                            const ReproductionPlan& plan) const {
+    ReportContext context;
+    std::vector<std::string> args;
+    for (const std::string& o : ctx.overrides) {
+      if (o == "task=reproduce") continue;
+      if (o == "task.ablation=" + options_.ablation) continue;
+      args.push_back(o);
+    }
+    context.command = fmt::format("soma reproduce {}{}{}",
+                                  options_.ablation,
+                                  args.empty() ? "" : " ",
+                                  fmt::join(args, " "));
+    const GitState git = QueryGit();
+    context.commit = git.available
+                         ? git.sha.substr(0, 12) + (git.dirty ? "-dirty" : "")
+                         : "unknown";
+    context.date = IsoNow();
+    context.machine = fmt::format("{} ({} hardware threads)",
+                                  HostName(),
+                                  std::thread::hardware_concurrency());
+    context.budget = reproduction.budget;
+    context.data_dir = reproduction.data_dir.string();
+    context.models_planned = static_cast<int>(plan.models.size());
+    return context;
+  }
+
+  ReproduceTaskOptions options_;
+};
+
+}  // namespace
+
+void RegisterReproduceTask(Registry<Task>& registry) {
+  registry.Register("reproduce", [](const ConfigNode& node, BuildContext&) {
+    ConfigReader reader(node);
+    ReproduceTaskOptions o;
+    reader.Require("ablation", &o.ablation);
+    reader.Read("ablations_dir", &o.ablations_dir);
+    reader.Read("results_dir", &o.results_dir);
+    reader.Read("mode", &o.mode);
+    reader.Check("mode",
+                 o.mode == "run" || o.mode == "plan" || o.mode == "report",
+                 "run, plan or report");
+    std::string root = o.reproduction.root.string();
+    reader.Read("root", &root);
+    o.reproduction.root = root;
+    std::string data_dir = o.reproduction.data_dir.string();
+    reader.Read("data_dir", &data_dir);
+    o.reproduction.data_dir = data_dir;
+    reader.Read("budget", &o.reproduction.budget);
+    if (const ConfigNode* seeds = reader.Child("seeds");
+        seeds != nullptr && !seeds->IsNull()) {
+      o.reproduction.seeds = static_cast<int>(seeds->AsInt());
+      reader.Check("seeds", o.reproduction.seeds >= 1, "null or >= 1");
+    }
+    reader.Read("jobs", &o.reproduction.jobs);
+    reader.Check("jobs", o.reproduction.jobs >= 1, "jobs >= 1");
+    reader.Read("test_seed", &o.reproduction.test_seed);
+    reader.Finish();
+    return std::make_unique<ReproduceTask>(std::move(o));
+  });
+}
+
+}  // namespace soma

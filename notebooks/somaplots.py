@@ -1,0 +1,530 @@
+"""Shared code of the notebooks in this folder: find, read and plot results/<name>.csv.
+
+`soma reproduce <name>` writes results/<name>.csv, one row per (variant, test, metric):
+
+    table,variant,variant_label,test,test_label,setting,mode,metric,seeds_done,seeds_planned,
+    mean,std_seeds,std_frames,paper,paper_std,status,note
+
+metric is acc or f1, values are percent, an empty cell is "no value"; status is one of
+done, partial, not run, skipped. mean is the mean over training seeds, std_seeds the sample std
+over seeds, std_frames the mean over seeds of the std over frames, paper/paper_std the published
+numbers (empty where the paper has none).
+
+Paths: $SOMA_RESULTS_DIR (default <repo>/results) and $SOMA_FIGURES_DIR (default
+$SOMA_RESULTS_DIR/figures, i.e. <repo>/results/figures), where <repo> is the first folder at or
+above the working directory (or this file) that holds ablations/. A relative value is taken from
+the shell's folder ($PWD), since a Jupyter kernel runs in the notebook's folder.
+
+Plain Python works too: `python3 notebooks/somaplots.py table5` writes the figure without Jupyter.
+"""
+
+from __future__ import annotations
+
+import os
+import pathlib
+import re
+import sys
+
+import matplotlib
+
+# Headless by default (tests, scripts). A Jupyter kernel sets MPLBACKEND to its inline backend,
+# which renders with Agg too and shows the figure in the notebook; keep that one.
+if "ipykernel" not in sys.modules and not os.environ.get("MPLBACKEND"):
+    matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Patch, Rectangle  # noqa: E402
+
+NAMES = ("table1", "table2", "table3", "table5", "fig_c1", "fig_c2")
+
+OURS_COLOR = "tab:blue"
+PAPER_COLOR = "tab:gray"
+MISSING_COLOR = "#e6e6e6"
+
+NUMERIC = ("seeds_done", "seeds_planned", "mean", "std_seeds", "std_frames", "paper", "paper_std")
+
+
+# --------------------------------------------------------------------------------------------
+# Paths and loading
+
+
+def repo_root(start: os.PathLike | str | None = None) -> pathlib.Path | None:
+    """The first folder at or above `start` (then this file) that holds ablations/."""
+    candidates = [pathlib.Path(start or os.getcwd()).resolve(), pathlib.Path(__file__).resolve().parent]
+    for first in candidates:
+        for d in (first, *first.parents):
+            if (d / "ablations").is_dir():
+                return d
+    return None
+
+
+def _env_dir(var: str) -> pathlib.Path | None:
+    """$var as an absolute folder. A relative value is tried against the working directory, then
+    $PWD (the shell's folder: a Jupyter kernel runs in the notebook's folder), then the repository."""
+    value = os.environ.get(var)
+    if not value:
+        return None
+    path = pathlib.Path(value).expanduser()
+    if path.is_absolute():
+        return path
+    bases = [pathlib.Path.cwd()]
+    if os.environ.get("PWD"):
+        bases.append(pathlib.Path(os.environ["PWD"]))
+    root = repo_root()
+    if root:
+        bases.append(root)
+    for base in bases:
+        if (base / path).is_dir():
+            return (base / path).resolve()
+    return (pathlib.Path(os.environ.get("PWD") or os.getcwd()) / path).resolve()  # to be created
+
+
+def results_dir() -> pathlib.Path:
+    env = _env_dir("SOMA_RESULTS_DIR")
+    if env:
+        return env
+    root = repo_root()
+    return (root / "results") if root else (pathlib.Path.cwd().parent / "results").resolve()
+
+
+def figures_dir() -> pathlib.Path:
+    return _env_dir("SOMA_FIGURES_DIR") or results_dir() / "figures"
+
+
+def load(name: str) -> pd.DataFrame | None:
+    """results/<name>.csv as a DataFrame, or None (with a message) when it does not exist yet."""
+    path = results_dir() / f"{name}.csv"
+    if not path.is_file():
+        print(f"results/{name}.csv: not run yet (no {path})")
+        return None
+    df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    for col in NUMERIC:
+        df[col] = pd.to_numeric(df[col].replace("", np.nan), errors="coerce")
+    df["status"] = df["status"].str.strip()
+    print(f"{path}: {len(df)} rows, status: " + ", ".join(f"{k} {v}" for k, v in df["status"].value_counts().items()))
+    return df
+
+
+def save(fig, name: str) -> pathlib.Path:
+    """Writes the figure to $SOMA_FIGURES_DIR/<name>.png; shows it in a notebook, closes it otherwise."""
+    out = figures_dir()
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{name}.png"
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    print(f"wrote {path}")
+    if "inline" in matplotlib.get_backend():
+        plt.show()
+    else:
+        plt.close(fig)
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# Helpers
+
+
+def ordered(values) -> list:
+    """Unique values in first-seen (CSV = spec) order."""
+    return list(dict.fromkeys(values))
+
+
+def _num(x) -> float | None:
+    return None if x is None or pd.isna(x) else float(x)
+
+
+def status_note(row) -> str:
+    """'' for done, 'n/m seeds' for partial, 'not run', 'skipped'."""
+    status = row["status"]
+    if status == "partial":
+        return f"{int(row['seeds_done'])}/{int(row['seeds_planned'])} seeds"
+    if status in ("not run", "skipped"):
+        return status
+    if status == "done" or not status:
+        return ""
+    return status
+
+
+def fmt_pm(mean, std) -> str:
+    mean, std = _num(mean), _num(std)
+    if mean is None:
+        return ""
+    return f"{mean:.2f}" + (f" ± {std:.2f}" if std is not None else "")
+
+
+def summary(df: pd.DataFrame) -> pd.DataFrame:
+    """Ours vs paper side by side: one row per (variant, test), acc and f1 columns."""
+    rows = []
+    for (variant, test), g in df.groupby(["variant", "test"], sort=False):
+        first = g.iloc[0]
+        row = {"variant": first["variant_label"] or variant, "test": first["test_label"] or test}
+        for metric in ordered(g["metric"]):
+            m = g[g["metric"] == metric].iloc[0]
+            ours = fmt_pm(m["mean"], m["std_seeds"])
+            row[f"{metric} ours"] = ours or m["status"]
+            row[f"{metric} frames ±"] = "" if pd.isna(m["std_frames"]) else f"{m['std_frames']:.2f}"
+            row[f"{metric} paper"] = fmt_pm(m["paper"], m["paper_std"]) or "—"
+            delta = ""
+            if not pd.isna(m["mean"]) and not pd.isna(m["paper"]):
+                delta = f"{m['mean'] - m['paper']:+.2f}"
+            row[f"{metric} Δ"] = delta
+        seeds_planned = first["seeds_planned"]
+        row["seeds"] = (
+            f"{int(first['seeds_done'])}/{int(seeds_planned)}" if not pd.isna(seeds_planned) and seeds_planned else ""
+        )
+        row["status"] = first["status"]
+        row["note"] = first["note"]
+        rows.append(row)
+    return pd.DataFrame(rows).set_index(["variant", "test"])
+
+
+def _metric(df: pd.DataFrame, metric: str = "acc") -> pd.DataFrame:
+    return df[df["metric"] == metric].reset_index(drop=True)
+
+
+def _legend_status(ax, markers: bool = False):
+    """Adds a legend entry that explains how partial cells are marked (hatched bars or ringed points)."""
+    handles, labels = ax.get_legend_handles_labels()
+    if markers:
+        handles.append(Line2D([], [], marker="o", ms=10, mfc="none", mec="tab:orange", mew=1.5, linestyle="none"))
+    else:
+        handles.append(Patch(facecolor="white", edgecolor="black", hatch="///"))
+    labels.append("partial (n/m seeds)")
+    ax.legend(handles, labels, fontsize=8, loc="best")
+
+
+def _paper_note(df: pd.DataFrame) -> str:
+    return "" if df["paper"].notna().any() else "no paper numbers (the paper gives no values for these cells)"
+
+
+# --------------------------------------------------------------------------------------------
+# Table 1: train noise x test noise heatmaps
+
+
+def plot_table1(df: pd.DataFrame, metric: str = "acc"):
+    d = _metric(df, metric)
+    variants, tests = ordered(d["variant"]), ordered(d["test"])
+    vlabels = [d[d["variant"] == v]["variant_label"].iloc[0] or v for v in variants]
+    tlabels = [d[d["test"] == t]["test_label"].iloc[0] or t for t in tests]
+    ours = np.full((len(variants), len(tests)), np.nan)
+    paper = np.full_like(ours, np.nan)
+    notes = [["" for _ in tests] for _ in variants]
+    for _, r in d.iterrows():
+        i, j = variants.index(r["variant"]), tests.index(r["test"])
+        ours[i, j], paper[i, j], notes[i][j] = r["mean"], r["paper"], status_note(r)
+    values = np.concatenate([ours[~np.isnan(ours)], paper[~np.isnan(paper)]])
+    vmin = float(np.floor(values.min())) if values.size else 0.0
+    vmax = 100.0
+    if vmin >= vmax:
+        vmin = vmax - 1.0
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True)
+    cmap = plt.get_cmap("viridis").copy()
+    cmap.set_bad(MISSING_COLOR)
+    im = None
+    for ax, grid, title, with_notes in (
+        (axes[0], ours, "ours (mean over seeds)", True),
+        (axes[1], paper, "paper", False),
+    ):
+        im = ax.imshow(np.ma.masked_invalid(grid), cmap=cmap, vmin=vmin, vmax=vmax, aspect="auto")
+        ax.set_xticks(range(len(tests)), tlabels)
+        ax.set_yticks(range(len(variants)), vlabels)
+        ax.set_xlabel("test noise")
+        ax.set_ylabel("training noise")
+        ax.set_title(title)
+        for i in range(len(variants)):
+            for j in range(len(tests)):
+                v = grid[i, j]
+                text = "" if np.isnan(v) else f"{v:.2f}"
+                if with_notes and notes[i][j]:
+                    text = f"{text}\n({notes[i][j]})" if text else notes[i][j]
+                elif not text:
+                    text = "—"
+                dark = not np.isnan(v) and (v - vmin) / (vmax - vmin) < 0.6
+                ax.text(j, i, text, ha="center", va="center", fontsize=8, color="white" if dark else "black")
+                if with_notes and d[(d["variant"] == variants[i]) & (d["test"] == tests[j])]["status"].eq("partial").any():
+                    ax.add_patch(
+                        Rectangle((j - 0.5, i - 0.5), 1, 1, fill=False, hatch="///", edgecolor="white", linewidth=0)
+                    )
+    fig.colorbar(im, ax=axes, label=f"{metric} (%)", shrink=0.9)
+    fig.suptitle(f"Table 1 — {metric} (%), training noise × test noise (HDM05); hatched = partial, grey = no value")
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
+# Table 2: accuracy vs number of exact occlusions
+
+
+def _occ_x(test: str, label: str, fallback: int) -> tuple[float, str]:
+    m = re.fullmatch(r"occ(\d+)(_g)?", test)
+    if not m:
+        return float(fallback), label or test
+    k = int(m.group(1))
+    return (k + 1.0, f"{k} + G") if m.group(2) else (float(k), str(k))
+
+
+def plot_table2(df: pd.DataFrame, metric: str = "acc"):
+    d = _metric(df, metric)
+    tests = ordered(d["test"])
+    xs, ticks = {}, {}
+    for n, t in enumerate(tests):
+        x, tick = _occ_x(t, d[d["test"] == t]["test_label"].iloc[0], n)
+        xs[t], ticks[x] = x, tick
+    fig, ax = plt.subplots(figsize=(8, 4.8), constrained_layout=True)
+    for variant in ordered(d["variant"]):
+        g = d[d["variant"] == variant].copy()
+        g["x"] = g["test"].map(xs)
+        g = g.sort_values("x")
+        label = g["variant_label"].iloc[0] or variant
+        have = g[g["mean"].notna()]
+        exact = have[~have["test"].str.endswith("_g")]
+        ghost = have[have["test"].str.endswith("_g")]
+        ax.fill_between(
+            exact["x"], exact["mean"] - exact["std_frames"].fillna(0), exact["mean"] + exact["std_frames"].fillna(0),
+            color=OURS_COLOR, alpha=0.15, label="ours ± frame std",
+        )
+        for part, style in ((exact, "-o"), (ghost, "s")):
+            if part.empty:
+                continue
+            ax.errorbar(
+                part["x"], part["mean"], yerr=part["std_seeds"].fillna(0), fmt=style, color=OURS_COLOR, capsize=4,
+                label=f"ours: {label} (± seed std)" if part is exact or exact.empty else None,
+            )
+            for _, r in part.iterrows():
+                if not pd.isna(r["std_frames"]) and part is ghost:
+                    ax.errorbar(r["x"], r["mean"], yerr=r["std_frames"], fmt="none", color=OURS_COLOR, alpha=0.3,
+                                elinewidth=8)
+        paper = g[g["paper"].notna()]
+        pexact = paper[~paper["test"].str.endswith("_g")]
+        pghost = paper[paper["test"].str.endswith("_g")]
+        if not pexact.empty:
+            ax.plot(pexact["x"], pexact["paper"], "--^", color=PAPER_COLOR, label="paper (SOMA*, BMLrub)")
+            if pexact["paper_std"].notna().any():
+                ax.fill_between(pexact["x"], pexact["paper"] - pexact["paper_std"].fillna(0),
+                                pexact["paper"] + pexact["paper_std"].fillna(0), color=PAPER_COLOR, alpha=0.1,
+                                label="paper ± std (Table D.1)")
+        if not pghost.empty:
+            ax.errorbar(pghost["x"], pghost["paper"], yerr=pghost["paper_std"].fillna(0), fmt="^", mfc="white",
+                        color=PAPER_COLOR, capsize=4)
+        _mark_points(ax, g, "x")
+    ax.set_xticks(sorted(ticks), [ticks[x] for x in sorted(ticks)])
+    ax.set_xlabel("occluded markers per frame (exactly k; + G = with up to 3 ghost points)")
+    ax.set_ylabel(f"{metric} (%)")
+    ax.grid(alpha=0.3)
+    _legend_status(ax, markers=True)
+    ax.set_title(f"Table 2 — {metric} vs exact occlusions (HDM05); paper: BMLrub, a reference, not like-for-like",
+                 fontsize=10)
+    return fig
+
+
+def _mark_points(ax, g: pd.DataFrame, xcol: str):
+    """Hollow hatched markers and 'n/m seeds' for partial points, 'not run'/'skipped' at the bottom."""
+    for _, r in g.iterrows():
+        note = status_note(r)
+        if not note:
+            continue
+        if pd.isna(r["mean"]):
+            ax.annotate(note, (r[xcol], 0), xycoords=("data", "axes fraction"), xytext=(0, 6),
+                        textcoords="offset points", ha="center", fontsize=8, color="tab:red", rotation=90)
+            ax.axvline(r[xcol], color="tab:red", alpha=0.2, linestyle=":")
+        else:
+            ax.plot(r[xcol], r["mean"], "o", ms=12, mfc="none", mec="tab:orange", mew=1.5)
+            ax.annotate(note, (r[xcol], r["mean"]), xytext=(6, -14), textcoords="offset points", fontsize=8,
+                        color="tab:orange")
+
+
+# --------------------------------------------------------------------------------------------
+# Table 3: per-frame vs tracklet, grouped bars
+
+
+def _dataset_and_mode(test: str, label: str, mode: str) -> tuple[str, str]:
+    if "," in label:
+        dataset = label.split(",")[0].strip()
+    else:
+        dataset = re.sub(r"_(frame|tracklet|per_frame)$", "", test)
+    return dataset, (mode or ("tracklet" if test.endswith("tracklet") else "per-frame"))
+
+
+def plot_table3(df: pd.DataFrame):
+    metrics = ordered(df["metric"])
+    fig, axes = plt.subplots(1, len(metrics), figsize=(6 * len(metrics), 4.8), constrained_layout=True, squeeze=False)
+    for ax, metric in zip(axes[0], metrics):
+        d = _metric(df, metric).copy()
+        dm = [_dataset_and_mode(t, lab, mo) for t, lab, mo in zip(d["test"], d["test_label"], d["mode"])]
+        d["dataset"] = [x[0] for x in dm]
+        d["mode"] = [x[1] for x in dm]
+        datasets, modes = ordered(d["dataset"]), ordered(d["mode"])
+        variants = ordered(d["variant"])
+        has_paper = d["paper"].notna().any()
+        bars = [(v, m, src) for v in variants for m in modes for src in (("ours", "paper") if has_paper else ("ours",))]
+        width = 0.8 / len(bars)
+        colors = plt.get_cmap("tab10")
+        for b, (variant, mode, src) in enumerate(bars):
+            for i, ds in enumerate(datasets):
+                rows = d[(d["variant"] == variant) & (d["mode"] == mode) & (d["dataset"] == ds)]
+                if rows.empty:
+                    continue
+                r = rows.iloc[0]
+                x = i - 0.4 + width * (b + 0.5)
+                color = colors(modes.index(mode))
+                label = f"{mode}" + ("" if len(variants) == 1 else f" ({variant})") + (" — paper" if src == "paper" else "")
+                if src == "paper":
+                    if not pd.isna(r["paper"]):
+                        ax.bar(x, r["paper"], width, yerr=_num(r["paper_std"]) or 0, color=color, alpha=0.35,
+                               edgecolor="black", capsize=3, label=label if i == 0 else None)
+                    continue
+                note = status_note(r)
+                if pd.isna(r["mean"]):
+                    ax.bar(x, 0, width, label=label if i == 0 else None, color=color)
+                    ax.text(x, 1, note or "no value", rotation=90, ha="center", va="bottom", fontsize=8,
+                            color="tab:red")
+                    continue
+                ax.bar(x, r["mean"], width, yerr=_num(r["std_seeds"]) or 0, color=color, capsize=4,
+                       hatch="///" if r["status"] == "partial" else None, edgecolor="black",
+                       label=label if i == 0 else None)
+                ax.text(x, r["mean"] / 2, f"{r['mean']:.2f}" + (f"\n{note}" if note else ""), ha="center",
+                        va="center", fontsize=8, rotation=90, color="white")
+        ax.set_xticks(range(len(datasets)), datasets)
+        ax.set_ylabel(f"{metric} (%)")
+        ax.set_ylim(0, 105)
+        ax.grid(axis="y", alpha=0.3)
+        _legend_status(ax)
+        note = _paper_note(d)
+        ax.set_title(f"{metric}: per-frame vs tracklet (± seed std)" + (f"\n{note}" if note else ""), fontsize=10)
+    fig.suptitle("Table 3 — per-frame vs tracklet labelling, real takes with 50 broken trajectories")
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
+# Table 5: ablation, horizontal bars per variant
+
+
+def plot_table5(df: pd.DataFrame, metric: str = "acc"):
+    d = _metric(df, metric)
+    tests = ordered(d["test"])
+    variants = ordered(d["variant"])
+    fig, axes = plt.subplots(1, len(tests), figsize=(7 * len(tests), 0.7 * len(variants) + 2.2),
+                             constrained_layout=True, squeeze=False, sharey=True)
+    h = 0.38
+    for ax, test in zip(axes[0], tests):
+        g = d[d["test"] == test]
+        for i, variant in enumerate(variants):
+            rows = g[g["variant"] == variant]
+            if rows.empty:
+                continue
+            r = rows.iloc[0]
+            note = status_note(r)
+            y_ours, y_paper = i - h / 2, i + h / 2
+            if pd.isna(r["mean"]):
+                ax.text(1, y_ours, note or "no value", va="center", fontsize=8, color="tab:red")
+            else:
+                ax.barh(y_ours, r["mean"], h, xerr=_num(r["std_seeds"]) or 0, color=OURS_COLOR, capsize=3,
+                        hatch="///" if r["status"] == "partial" else None, edgecolor="black",
+                        label="ours (± seed std)" if i == 0 or "ours (± seed std)" not in
+                        ax.get_legend_handles_labels()[1] else None)
+                ax.text(r["mean"] + (_num(r["std_seeds"]) or 0) + 1, y_ours,
+                        f"{r['mean']:.2f}" + (f"  ({note})" if note else ""), va="center", fontsize=8)
+            if not pd.isna(r["paper"]):
+                ax.barh(y_paper, r["paper"], h, xerr=_num(r["paper_std"]) or 0, color=PAPER_COLOR, alpha=0.6,
+                        capsize=3, label="paper (± frame std)" if "paper (± frame std)" not in
+                        ax.get_legend_handles_labels()[1] else None)
+                ax.text(r["paper"] + (_num(r["paper_std"]) or 0) + 1, y_paper, f"{r['paper']:.2f}", va="center",
+                        fontsize=8, color="dimgray")
+            else:
+                ax.text(1, y_paper, "paper: —", va="center", fontsize=7, color="dimgray")
+        labels = [d[d["variant"] == v]["variant_label"].iloc[0] or v for v in variants]
+        ax.set_yticks(range(len(variants)), labels)
+        ax.set_xlim(0, 118)
+        ax.set_xlabel(f"{metric} (%)")
+        ax.grid(axis="x", alpha=0.3)
+        tl = g["test_label"].iloc[0] if not g.empty else test
+        ax.set_title(tl + ("" if g["paper"].notna().any() else " — no paper numbers for this test"), fontsize=10)
+        _legend_status(ax)
+    axes[0][0].invert_yaxis()  # the axes share y: first variant on top, once
+    fig.suptitle(f"Table 5 — ablation of SOMA's components, {metric} (%)")
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
+# Figures C.1 / C.2: accuracy vs a swept integer
+
+
+def sweep_x(variant: str) -> float | None:
+    """layers_8 -> 8, iters_35 -> 35."""
+    m = re.search(r"(\d+)$", variant)
+    return float(m.group(1)) if m else None
+
+
+def plot_sweep(df: pd.DataFrame, name: str, xlabel: str, title: str, metric: str = "acc"):
+    d = _metric(df, metric).copy()
+    d["x"] = d["variant"].map(sweep_x)
+    ticklabel = {x: f"{int(x)}" for x in d["x"].dropna()}
+    if d["x"].isna().any():  # a variant name without a trailing number: plot in spec order instead
+        d["x"] = d["variant"].map({v: float(i + 1) for i, v in enumerate(ordered(d["variant"]))})
+        ticklabel = dict(zip(d["x"], d["variant"]))
+    d = d.sort_values("x", kind="stable")
+    fig, ax = plt.subplots(figsize=(7.5, 4.8), constrained_layout=True)
+    for n, test in enumerate(ordered(d["test"])):
+        g = d[d["test"] == test]
+        tl = g["test_label"].iloc[0] or test
+        color = plt.get_cmap("tab10")(n)
+        have = g[g["mean"].notna()]
+        if not have.empty:
+            ax.fill_between(have["x"], have["mean"] - have["std_frames"].fillna(0),
+                            have["mean"] + have["std_frames"].fillna(0), color=color, alpha=0.12,
+                            label=f"ours {tl} ± frame std")
+            ax.errorbar(have["x"], have["mean"], yerr=have["std_seeds"].fillna(0), fmt="-o", color=color,
+                        capsize=4, label=f"ours: {tl} (± seed std)")
+        paper = g[g["paper"].notna()]
+        if not paper.empty:
+            ax.plot(paper["x"], paper["paper"], "--^", color=PAPER_COLOR, label=f"paper: {tl}")
+        _mark_points(ax, g, "x")
+    xs = sorted(d["x"].unique())
+    if xs and min(xs) > 0:
+        ax.set_xscale("log")
+        ax.minorticks_off()
+    ax.set_xticks(xs, [ticklabel[x] for x in xs])
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(f"{metric} (%)")
+    ax.grid(alpha=0.3)
+    _legend_status(ax, markers=True)
+    note = "" if d["paper"].notna().any() else "no paper numbers: the paper shows this curve only as a figure"
+    ax.set_title(title + (f"\n({note})" if note else ""), fontsize=10)
+    return fig
+
+
+def plot_fig_c1(df: pd.DataFrame):
+    return plot_sweep(df, "fig_c1", "self-attention layers", "Fig. C.1 — accuracy vs number of attention layers")
+
+
+def plot_fig_c2(df: pd.DataFrame):
+    return plot_sweep(df, "fig_c2", "Sinkhorn iterations", "Fig. C.2 — accuracy vs number of Sinkhorn iterations")
+
+
+PLOTS = {
+    "table1": plot_table1,
+    "table2": plot_table2,
+    "table3": plot_table3,
+    "table5": plot_table5,
+    "fig_c1": plot_fig_c1,
+    "fig_c2": plot_fig_c2,
+}
+
+
+def plot(name: str, df: pd.DataFrame):
+    return PLOTS[name](df)
+
+
+def main(argv: list[str]) -> int:
+    for name in argv or NAMES:
+        df = load(name)
+        if df is not None:
+            print(summary(df).to_string())
+            save(plot(name, df), name)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

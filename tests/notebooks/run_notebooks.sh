@@ -1,0 +1,99 @@
+#!/usr/bin/env bash
+# Executes every notebooks/*.ipynb headless with Debian's nbconvert and checks the outcome.
+#
+#   tests/notebooks/run_notebooks.sh [RESULTS_DIR [FIGURES_DIR]]
+#
+# RESULTS_DIR (else $SOMA_RESULTS_DIR, else <repo>/results) holds the <name>.csv files of
+# `soma reproduce <name>`; FIGURES_DIR (else $SOMA_FIGURES_DIR, else RESULTS_DIR/figures) receives
+# <name>.png. Fixture mode (CTest notebooks.fixtures): RESULTS_DIR = tests/notebooks/fixtures.
+#
+# Fails (exit 1) if a notebook raises, if a notebook whose CSV exists writes no fresh PNG, or if a
+# notebook whose CSV is missing does not say "not run yet" or writes a PNG. Executed copies go to a
+# temporary folder (kept with KEEP_NOTEBOOK_OUTPUTS=1); the notebooks in the tree stay clean.
+set -uo pipefail
+
+here=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd -P)
+repo=$(cd "$here/../.." && pwd)
+nbdir="$repo/notebooks"
+python=${SOMA_NOTEBOOK_PYTHON:-/usr/bin/python3}
+
+results=${1:-${SOMA_RESULTS_DIR:-$repo/results}}
+figures=${2:-${SOMA_FIGURES_DIR:-$results/figures}}
+[[ -d "$results" ]] || { echo "run_notebooks: no folder $results" >&2; exit 1; }
+results=$(cd "$results" && pwd)
+mkdir -p "$figures" || exit 1
+figures=$(cd "$figures" && pwd)
+
+if ! "$python" -c "import nbconvert, nbformat, ipykernel, pandas, matplotlib" 2>/dev/null; then
+  echo "run_notebooks: $python lacks nbconvert/nbformat/ipykernel/pandas/matplotlib" \
+       "(scripts/install_deps.sh installs the Debian packages)" >&2
+  exit 1
+fi
+
+tmp=$(mktemp -d "${TMPDIR:-/tmp}/soma-notebooks.XXXXXX") || exit 1
+if [[ -z "${KEEP_NOTEBOOK_OUTPUTS:-}" ]]; then
+  trap 'rm -rf "$tmp"' EXIT
+else
+  echo "run_notebooks: executed notebooks kept in $tmp"
+fi
+
+export SOMA_RESULTS_DIR=$results SOMA_FIGURES_DIR=$figures
+export MPLBACKEND=Agg                  # headless; no inline images stored in the executed copies
+export JUPYTER_RUNTIME_DIR=$tmp/runtime  # kernel connection files out of $HOME
+export PYDEVD_DISABLE_FILE_VALIDATION=1  # silence the debugger warning of frozen modules
+# A read-only or missing $HOME must not break matplotlib's font cache.
+if [[ -z "${MPLCONFIGDIR:-}" && ! -w "${HOME:-/nonexistent}" ]]; then export MPLCONFIGDIR=$tmp/mpl; fi
+
+shopt -s nullglob
+notebooks=("$nbdir"/*.ipynb)
+if ((${#notebooks[@]} == 0)); then echo "run_notebooks: no notebooks in $nbdir" >&2; exit 1; fi
+
+stamp=$tmp/stamp
+touch "$stamp"
+sleep 1  # PNG mtimes must be strictly newer than the stamp (1 s filesystem granularity)
+
+failed=()
+start=$SECONDS
+for nb in "${notebooks[@]}"; do
+  name=$(basename "$nb" .ipynb)
+  t0=$SECONDS
+  log=$tmp/$name.log
+  if ! "$python" -m nbconvert --to notebook --execute --ExecutePreprocessor.timeout=120 \
+       --ExecutePreprocessor.startup_timeout=300 --ExecutePreprocessor.kernel_name=python3 \
+       --output-dir "$tmp" "$nb" >"$log" 2>&1; then
+    echo "FAIL $name: the notebook raised"
+    tail -n 40 "$log" | sed 's/^/    /'
+    failed+=("$name")
+    continue
+  fi
+  png=$figures/$name.png
+  if [[ -f "$results/$name.csv" ]]; then
+    if [[ ! -s "$png" || ! "$png" -nt "$stamp" ]]; then
+      echo "FAIL $name: $results/$name.csv exists but no fresh $png was written"
+      failed+=("$name")
+      continue
+    fi
+    echo "ok   $name ($((SECONDS - t0)) s): $png"
+  else
+    if ! grep -q "not run yet" "$tmp/$name.ipynb"; then
+      echo "FAIL $name: no $name.csv, but the notebook did not say \"not run yet\""
+      failed+=("$name")
+      continue
+    fi
+    if [[ -f "$png" && "$png" -nt "$stamp" ]]; then
+      echo "FAIL $name: no $name.csv, but $png was written"
+      failed+=("$name")
+      continue
+    fi
+    echo "ok   $name ($((SECONDS - t0)) s): not run yet (no $name.csv)"
+  fi
+done
+
+for csv in "$results"/*.csv; do
+  [[ -f "$nbdir/$(basename "$csv" .csv).ipynb" ]] || echo "note: no notebook plots $csv"
+done
+echo "run_notebooks: ${#notebooks[@]} notebooks in $((SECONDS - start)) s; results $results, figures $figures"
+if ((${#failed[@]} > 0)); then
+  echo "run_notebooks: FAILED: ${failed[*]}" >&2
+  exit 1
+fi

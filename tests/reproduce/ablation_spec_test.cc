@@ -1,0 +1,138 @@
+#include "framework/reproduce/ablation_spec.h"
+
+#include "framework/config/yaml_io.h"
+#include "framework/core/error.h"
+#include "framework/testing/testing.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+namespace soma {
+namespace {
+
+using ::testing::ElementsAre;
+using ::testing::HasSubstr;
+
+constexpr char kSpec[] = R"(
+name: demo
+title: "Demo table"
+paper_ref: "SOMA Table 5"
+seeds: 2
+differences: ["smaller model"]
+tests:
+  hdm05: {label: "HDM05", take: c3d/a.c3d, setting: OC_05_G_03_BT_00}
+  occ5: {take: c3d/a.c3d, setting: OCE_05_G_00_BT_00, tracklet: true}
+variants:
+  - name: base
+    label: "Base"
+    paper: {hdm05: {acc: 95.5, acc_std: 5.33, f1: 94.66}}
+  - name: log_softmax
+    overrides: [normalization=log_softmax]
+  - name: no_real
+    skip: "needs the solver"
+claims:
+  - {text: "Sinkhorn helps", test: hdm05, better: base, worse: log_softmax}
+  - {text: "robust", test: hdm05, worse_test: occ5, kind: close,
+     tolerance: 2.0, better: base, worse: base, paper_gap: 0.7}
+)";
+
+AblationSpec Parse(const std::string& yaml) {
+  return ParseAblationSpec(ParseYaml(yaml, "demo.yaml"), "demo.yaml");
+}
+
+/// kSpec with `from` replaced by `to` (which must occur).
+std::string Edit(const std::string& from, const std::string& to) {
+  std::string s = kSpec;
+  const size_t at = s.find(from);
+  EXPECT_NE(at, std::string::npos) << from;
+  return s.replace(at, from.size(), to);
+}
+
+TEST(AblationSpecTest, ParsesEveryField) {
+  const AblationSpec spec = Parse(kSpec);
+  EXPECT_EQ(spec.name, "demo");
+  EXPECT_EQ(spec.seeds, 2);
+  EXPECT_THAT(spec.differences, ElementsAre("smaller model"));
+  ASSERT_EQ(spec.tests.size(), 2u);
+  EXPECT_EQ(spec.Test("hdm05").setting, "OC_05_G_03_BT_00");
+  EXPECT_FALSE(spec.Test("hdm05").tracklet);
+  EXPECT_EQ(spec.Test("occ5").label, "occ5");  // defaults to the name
+  EXPECT_TRUE(spec.Test("occ5").tracklet);
+  ASSERT_EQ(spec.variants.size(), 3u);
+  EXPECT_THAT(spec.Variant("log_softmax").overrides,
+              ElementsAre("normalization=log_softmax"));
+  EXPECT_EQ(spec.Variant("no_real").skip, "needs the solver");
+  const PaperValue& acc = spec.Variant("base").paper.at("hdm05").at("acc");
+  EXPECT_DOUBLE_EQ(acc.mean, 95.5);
+  EXPECT_DOUBLE_EQ(*acc.std, 5.33);
+  EXPECT_FALSE(spec.Variant("base").paper.at("hdm05").at("f1").std);
+  ASSERT_EQ(spec.claims.size(), 2u);
+  EXPECT_EQ(spec.claims[0].better_test, "hdm05");
+  EXPECT_EQ(spec.claims[0].kind, "greater");
+  EXPECT_EQ(spec.claims[1].worse_test, "occ5");
+  EXPECT_DOUBLE_EQ(*spec.claims[1].paper_gap, 0.7);
+}
+
+TEST(AblationSpecTest, BadSpecsAreOneLineConfigErrors) {
+  struct Case {
+    std::string from, to, message;
+  };
+  const std::vector<Case> cases = {
+      {"seeds: 2", "seeds: 2\nrows: 3", "unknown key 'rows'"},
+      {"seeds: 2", "seeds: 0", "seeds >= 1"},
+      {"name: log_softmax", "name: base", "variant 'base' is defined twice"},
+      {"name: log_softmax", "name: Log-Softmax", "an identifier"},
+      {"worse: log_softmax}", "worse: nope}", "a variant name"},
+      {"test: hdm05, better: base, worse: log_softmax",
+       "test: hdm06, better: base, worse: log_softmax",
+       "a test of this spec"},
+      {"paper: {hdm05:", "paper: {hdm06:", "a test of this spec"},
+      {"tolerance: 2.0,", "", "needs a tolerance"},
+      {"kind: close", "kind: less", "greater or close"},
+      {"acc: 95.5, acc_std: 5.33, f1: 94.66",
+       "acc: 95.5, f1_std: 5.33",
+       "f1_std needs f1"},
+      {"setting: OCE_05_G_00_BT_00, ", "", "Missing key"},
+  };
+  for (const Case& c : cases) {
+    const std::string message =
+        testing::ErrorMessage<ConfigError>([&] { Parse(Edit(c.from, c.to)); });
+    EXPECT_THAT(message, HasSubstr(c.message)) << c.to;
+    EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+  }
+}
+
+TEST(AblationSpecTest, LoadChecksTheFileNameAndListsAvailableSpecs) {
+  const auto dir = testing::CreateTestDir();
+  testing::WriteTextFile(dir, "demo.yaml", kSpec);
+  testing::WriteTextFile(dir, "other.yaml", kSpec);
+  EXPECT_EQ(LoadAblationSpec("demo", dir).name, "demo");
+  EXPECT_EQ(LoadAblationSpec((dir / "demo.yaml").string(), "/nowhere").name,
+            "demo");
+  EXPECT_THAT(testing::ErrorMessage<ConfigError>(
+                  [&] { LoadAblationSpec("other", dir); }),
+              HasSubstr("name 'demo' differs from the file name 'other'"));
+  EXPECT_THAT(
+      testing::ErrorMessage<IoError>([&] { LoadAblationSpec("table9", dir); }),
+      HasSubstr("no such ablation spec. Available in " + dir.string() +
+                ": demo, other"));
+}
+
+TEST(AblationSpecTest, EveryShippedSpecIsValid) {
+  const auto dir = testing::SourceDir() / "ablations";
+  const std::vector<std::string> names = ListAblationSpecs(dir);
+  for (const char* required :
+       {"table1", "table2", "table3", "table5", "fig_c1", "fig_c2"}) {
+    EXPECT_THAT(names, ::testing::Contains(required));
+  }
+  for (const std::string& name : names) {
+    const AblationSpec spec = LoadAblationSpec(name, dir);
+    EXPECT_GE(spec.seeds, 3) << name << ": the issue asks for >= 3 seeds";
+    EXPECT_FALSE(spec.differences.empty())
+        << name << " must state how it differs from the paper";
+    EXPECT_FALSE(spec.claims.empty()) << name;
+  }
+}
+
+}  // namespace
+}  // namespace soma

@@ -1,0 +1,163 @@
+#include "framework/reproduce/report.h"
+
+#include "framework/config/yaml_io.h"
+#include "framework/core/file.h"
+#include "framework/testing/testing.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <sstream>
+
+namespace soma {
+namespace {
+
+using ::testing::HasSubstr;
+using ::testing::Not;
+
+AblationSpec Spec() {
+  return ParseAblationSpec(ParseYaml(R"(
+name: demo
+title: "Demo table"
+seeds: 3
+differences: ["procedural body"]
+tests:
+  t0: {label: "zero", take: a.c3d, setting: OCE_00_G_00_BT_00}
+  t5: {label: "five", take: a.c3d, setting: OCE_05_G_00_BT_00}
+variants:
+  - name: base
+    paper: {t0: {acc: 98.0, acc_std: 1.5}, t5: {acc: 97.0}}
+  - name: weak
+    paper: {t0: {acc: 90.0}}
+  - name: todo
+  - name: no_bank
+    skip: "needs the solver"
+claims:
+  - {text: "base beats weak", test: t0, better: base, worse: weak}
+  - {text: "weak beats base", test: t0, better: weak, worse: base}
+  - {text: "robust", test: t0, worse_test: t5, kind: close, tolerance: 2.0,
+     better: base, worse: base}
+  - {text: "todo beats weak", test: t0, better: todo, worse: weak,
+     paper_gap: 1.0, paper_note: "Fig. 9"}
+)",
+                                     "demo.yaml"),
+                           "demo.yaml");
+}
+
+CellResult Cell(std::string variant,
+                std::string test,
+                std::vector<double> means,
+                std::vector<double> frame_stds = {}) {
+  CellResult cell;
+  cell.variant = std::move(variant);
+  cell.test = std::move(test);
+  cell.metric = "acc";
+  cell.seed_means = std::move(means);
+  cell.seed_frame_stds = frame_stds.empty()
+                             ? std::vector<double>(cell.seed_means.size(), 5.0)
+                             : std::move(frame_stds);
+  cell.seeds_planned = 3;
+  return cell;
+}
+
+std::vector<CellResult> Cells() {
+  return {Cell("base", "t0", {96.0, 97.0, 98.0}, {4.0, 5.0, 6.0}),
+          Cell("base", "t5", {95.0, 95.5, 96.5}),
+          Cell("weak", "t0", {90.0}),
+          Cell("todo", "t0", {})};
+}
+
+TEST(ReportTest, CellStatisticsOverSeeds) {
+  const CellResult cell = Cells()[0];
+  EXPECT_DOUBLE_EQ(*cell.Mean(), 97.0);
+  EXPECT_DOUBLE_EQ(*cell.SeedStd(), 1.0);  // sample std (ddof 1)
+  EXPECT_DOUBLE_EQ(*cell.FrameStd(), 5.0);
+  EXPECT_FALSE(Cells()[2].SeedStd());  // one seed: no spread
+  EXPECT_FALSE(Cells()[3].Mean());
+}
+
+TEST(ReportTest, ClaimsAreCheckedWithTheirGaps) {
+  const AblationSpec spec = Spec();
+  const std::vector<ClaimOutcome> out = CheckClaims(spec, Cells());
+  ASSERT_EQ(out.size(), 4u);
+  EXPECT_EQ(out[0].verdict, "pass");
+  EXPECT_DOUBLE_EQ(*out[0].gap, 7.0);
+  EXPECT_DOUBLE_EQ(*out[0].paper_gap, 8.0);  // from the paper values
+  EXPECT_FALSE(out[0].gap_se);               // weak has one seed
+  EXPECT_EQ(out[1].verdict, "fail");
+  EXPECT_DOUBLE_EQ(*out[1].gap, -7.0);
+  // Across tests: 97.0 (t0) vs 95.667 (t5), |gap| <= 2.
+  EXPECT_EQ(out[2].verdict, "pass");
+  EXPECT_NEAR(*out[2].gap, 97.0 - 95.0 - 2.0 / 3.0, 1e-12);
+  EXPECT_DOUBLE_EQ(*out[2].paper_gap, 1.0);
+  const double s5 = *Cells()[1].SeedStd();
+  EXPECT_NEAR(*out[2].gap_se, std::sqrt(1.0 / 3 + s5 * s5 / 3), 1e-12);
+  EXPECT_EQ(out[3].verdict, "not run");
+  EXPECT_DOUBLE_EQ(*out[3].paper_gap, 1.0);
+}
+
+TEST(ReportTest, CloseClaimFailsOutsideItsTolerance) {
+  std::vector<CellResult> cells = Cells();
+  cells[1] = Cell("base", "t5", {90.0, 91.0, 92.0});
+  EXPECT_EQ(CheckClaims(Spec(), cells)[2].verdict, "fail");
+}
+
+TEST(ReportTest, CsvHasOneRowPerVariantTestAndMetricWithStatus) {
+  const auto dir = testing::CreateTestDir();
+  WriteResultsCsv(Spec(), Cells(), dir / "demo.csv");
+  std::istringstream csv(ReadFile(dir / "demo.csv"));
+  std::string line;
+  std::getline(csv, line);
+  EXPECT_EQ(line,
+            "table,variant,variant_label,test,test_label,setting,mode,metric,"
+            "seeds_done,seeds_planned,mean,std_seeds,std_frames,paper,"
+            "paper_std,status,note");
+  std::vector<std::string> rows;
+  while (std::getline(csv, line)) rows.push_back(line);
+  ASSERT_EQ(rows.size(), 4u * 2u * 2u);
+  EXPECT_EQ(rows[0],
+            "demo,base,base,t0,zero,OCE_00_G_00_BT_00,per-frame,acc,3,3,"
+            "97.00,1.00,5.00,98.00,1.50,done,");
+  EXPECT_EQ(rows[1],
+            "demo,base,base,t0,zero,OCE_00_G_00_BT_00,per-frame,f1,0,0,,,,,,"
+            "not run,");
+  EXPECT_EQ(rows[4],
+            "demo,weak,weak,t0,zero,OCE_00_G_00_BT_00,per-frame,acc,1,3,"
+            "90.00,,5.00,90.00,,partial,");
+  EXPECT_THAT(rows[12], HasSubstr(",skipped,needs the solver"));
+}
+
+TEST(ReportTest, MarkdownMarksPartialTablesAndShowsClaims) {
+  const auto dir = testing::CreateTestDir();
+  ReportContext context;
+  context.command = "soma reproduce demo";
+  context.commit = "abc123";
+  context.models_done = 4;
+  context.models_planned = 9;
+  context.compute_s = 5400;
+  context.budget = {"scale=cpu"};
+  WriteResultsMarkdown(Spec(), Cells(), context, dir / "demo.md");
+  const std::string md = ReadFile(dir / "demo.md");
+  EXPECT_THAT(md, HasSubstr("**PARTIAL: 4 of 9 trainings finished.**"));
+  EXPECT_THAT(md, HasSubstr("`soma reproduce demo`"));
+  EXPECT_THAT(md, HasSubstr("1 h 30 min"));
+  EXPECT_THAT(md,
+              HasSubstr("| base | zero | 97.00 ± 1.00 (3/3 seeds) | 5.00 | "
+                        "98.00 ± 1.50 |"));
+  EXPECT_THAT(md, HasSubstr("| weak | five | not run |"));
+  EXPECT_THAT(md, HasSubstr("| no_bank | zero | skipped |"));
+  EXPECT_THAT(md, HasSubstr("- **no_bank**: needs the solver"));
+  EXPECT_THAT(md, HasSubstr("| +8.00 | +7.00 | **pass** |"));
+  EXPECT_THAT(md, HasSubstr("**fail**"));
+  EXPECT_THAT(md, HasSubstr("base@t0 − base@t5"));
+  EXPECT_THAT(md, HasSubstr("+1.00 (Fig. 9) | — | **not run** |"));
+  EXPECT_THAT(md, HasSubstr("- procedural body"));
+
+  context.models_done = 9;
+  WriteResultsMarkdown(Spec(), Cells(), context, dir / "demo.md");
+  EXPECT_THAT(ReadFile(dir / "demo.md"), Not(HasSubstr("PARTIAL")));
+}
+
+}  // namespace
+}  // namespace soma

@@ -1,0 +1,221 @@
+// The reproduction runner against a fake `soma` (a shell script that writes
+// what each command would), so planning, resuming and failure handling are
+// tested without training anything; tests/integration runs the real one.
+#include "framework/reproduce/reproduction.h"
+
+#include "framework/config/ledger.h"
+#include "framework/config/yaml_io.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+#include "framework/testing/testing.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <sstream>
+#include <sys/stat.h>
+
+namespace soma {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::ElementsAre;
+using ::testing::HasSubstr;
+
+AblationSpec Spec() {
+  return ParseAblationSpec(ParseYaml(R"(
+name: demo
+title: "Demo"
+seeds: 2
+tests:
+  a: {take: c3d/take.c3d, setting: OC_05_G_03_BT_00}
+  b: {take: c3d/take.c3d, setting: OC_05_G_03_BT_00, tracklet: true}
+variants:
+  - {name: base}
+  - {name: lsm, overrides: [normalization=log_softmax]}
+  - {name: bank, skip: "needs the solver"}
+claims: []
+)",
+                                     "demo.yaml"),
+                           "demo.yaml");
+}
+
+// Appends "<command> <run dir>" to $FAKE_CALLS, fails when the run dir
+// contains $FAKE_FAIL, else writes the metrics the real command reports.
+constexpr char kFakeSoma[] = R"(#!/bin/sh
+cmd="$1"; dir=""
+for a in "$@"; do case "$a" in hydra.run.dir=*) dir="${a#hydra.run.dir=}";; esac; done
+mkdir -p "$dir"
+echo "$cmd $dir" >> "$FAKE_CALLS"
+if [ -n "$FAKE_FAIL" ] && case "$dir" in *"$FAKE_FAIL"*) true;; *) false;; esac; then
+  echo "Could not find the checkpoint" > "$dir/error.txt"; exit 1
+fi
+case "$cmd" in
+  train) printf 'val_acc: 0.9\nval_f1: 0.8\nepochs: 20\n' > "$dir/metrics.yaml";;
+  eval) case "$dir" in
+          *normalization*) printf 'acc_mean: 0.8\nacc_std: 0.1\nf1_mean: 0.7\nf1_std: 0.2\n' > "$dir/metrics.yaml";;
+          *) printf 'acc_mean: 0.9\nacc_std: 0.05\nf1_mean: 0.85\nf1_std: 0.1\n' > "$dir/metrics.yaml";;
+        esac;;
+  *) printf 'ok: 1\n' > "$dir/metrics.yaml";;
+esac
+)";
+
+class ReproductionTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = testing::CreateTestDir();
+    const fs::path fake = dir_ / "soma";
+    WriteFileAtomic(fake, kFakeSoma);
+    ::chmod(fake.c_str(), 0755);
+    options_.executable = fake;
+    options_.root = dir_ / "root";
+    options_.data_dir = "/data";
+    options_.budget = {"scale=cpu", "train.max_epochs=2"};
+    options_.jobs = 2;
+    ::setenv("FAKE_CALLS", (dir_ / "calls.txt").c_str(), 1);
+    ::unsetenv("FAKE_FAIL");
+  }
+  void TearDown() override {
+    ::unsetenv("FAKE_CALLS");
+    ::unsetenv("FAKE_FAIL");
+  }
+
+  std::vector<std::string> Calls() const {
+    std::vector<std::string> calls;
+    if (!fs::exists(dir_ / "calls.txt")) return calls;
+    std::istringstream in(ReadFile(dir_ / "calls.txt"));
+    for (std::string line; std::getline(in, line);) calls.push_back(line);
+    fs::remove(dir_ / "calls.txt");
+    return calls;
+  }
+
+  fs::path dir_;
+  ReproductionOptions options_;
+};
+
+TEST_F(ReproductionTest, PlanIsSeedMajorAndSharesModelsByOverrides) {
+  const ReproductionPlan plan = PlanReproduction(Spec(), options_);
+  EXPECT_EQ(plan.seeds, 2);
+  ASSERT_EQ(plan.corrupt.size(), 1u);  // one take x setting for both tests
+  EXPECT_THAT(plan.corrupt[0].argv,
+              ElementsAre(options_.executable.string(),
+                          "corrupt",
+                          "task.files=[/data/c3d/take.c3d]",
+                          "task.settings=[OC_05_G_03_BT_00]",
+                          "seed=0",
+                          ::testing::StartsWith("hydra.run.dir=")));
+  ASSERT_EQ(plan.models.size(), 4u);  // the skipped variant is not planned
+  EXPECT_EQ(plan.models[0].variant, "base");
+  EXPECT_EQ(plan.models[1].variant, "lsm");
+  EXPECT_EQ(plan.models[2].variant, "base");
+  EXPECT_EQ(plan.models[2].seed, 1);
+  EXPECT_THAT(plan.models[1].train_overrides,
+              ElementsAre("scale=cpu",
+                          "train.max_epochs=2",
+                          "normalization=log_softmax",
+                          "seed=0"));
+  EXPECT_EQ(plan.models[0].dir.parent_path(), plan.models[2].dir.parent_path());
+  EXPECT_NE(plan.models[0].dir.parent_path(), plan.models[1].dir.parent_path());
+  // train + (label, eval) per test.
+  ASSERT_EQ(plan.models[0].commands.size(), 5u);
+  EXPECT_EQ(plan.models[0].commands[0].argv[1], "train");
+  EXPECT_THAT(plan.models[0].commands[3].argv,
+              ::testing::Contains("task.tracklet=true"));
+  // A different budget trains different models.
+  ReproductionOptions other = options_;
+  other.budget = {"scale=cpu", "train.max_epochs=3"};
+  EXPECT_NE(PlanReproduction(Spec(), other).models[0].dir, plan.models[0].dir);
+  EXPECT_EQ(PlanReproduction(Spec(), options_).models[0].dir,
+            plan.models[0].dir);
+}
+
+TEST_F(ReproductionTest, RunsEverythingOnceThenResumesOnlyWhatIsMissing) {
+  const AblationSpec spec = Spec();
+  const ReproductionPlan plan = PlanReproduction(spec, options_);
+  int finished = 0;
+  const ReproductionRun run =
+      RunReproduction(plan, options_, false, [&] { ++finished; });
+  EXPECT_EQ(run.models_done, 4);
+  EXPECT_EQ(run.models_failed, 0);
+  EXPECT_EQ(finished, 4);
+  EXPECT_EQ(Calls().size(), 1u + 4u * 5u);
+
+  const std::vector<CellResult> cells = CollectResults(spec, plan);
+  ASSERT_EQ(cells.size(), 3u * 2u * 2u);
+  EXPECT_EQ(cells[0].variant, "base");
+  EXPECT_EQ(cells[0].seeds_done(), 2);
+  EXPECT_DOUBLE_EQ(*cells[0].Mean(), 90.0);
+  EXPECT_DOUBLE_EQ(*cells[0].FrameStd(), 5.0);
+  EXPECT_DOUBLE_EQ(*cells[5].Mean(), 70.0);  // lsm, test a, f1
+  EXPECT_EQ(cells[8].seeds_done(), 0);       // skipped
+  EXPECT_EQ(cells[8].seeds_planned, 0);
+
+  const Ledger ledger = Ledger::Load(plan.dir);
+  ASSERT_EQ(ledger.entries().size(), 4u);
+  EXPECT_EQ(ledger.entries()[1].status, JobStatus::kDone);
+  EXPECT_DOUBLE_EQ(ledger.entries()[1].metrics.at("a/acc_mean"), 0.8);
+  EXPECT_DOUBLE_EQ(ledger.entries()[1].metrics.at("train/val_acc"), 0.9);
+
+  // Nothing left: no command runs again.
+  EXPECT_EQ(RunReproduction(plan, options_, false).models_done, 4);
+  EXPECT_TRUE(Calls().empty());
+
+  // A lost evaluation is redone alone.
+  fs::remove(plan.models[3].eval_dirs.at("b") / "metrics.yaml");
+  RunReproduction(plan, options_, false);
+  const std::vector<std::string> calls = Calls();
+  ASSERT_EQ(calls.size(), 1u);
+  EXPECT_THAT(calls[0], HasSubstr("eval "));
+}
+
+TEST_F(ReproductionTest, AFailedModelIsRecordedAndRetriedOnTheNextRun) {
+  const ReproductionPlan plan = PlanReproduction(Spec(), options_);
+  // Fail the label step of one model (only its dir contains this path).
+  const fs::path failing = plan.models[1].commands[1].run_dir;
+  ::setenv("FAKE_FAIL", failing.c_str(), 1);
+  const ReproductionRun run = RunReproduction(plan, options_, false);
+  EXPECT_EQ(run.models_done, 3);
+  EXPECT_EQ(run.models_failed, 1);
+  ASSERT_EQ(run.errors.size(), 1u);
+  EXPECT_THAT(
+      run.errors[0],
+      HasSubstr("label lsm seed 0 on a: Could not find the checkpoint"));
+  const Ledger ledger = Ledger::Load(plan.dir);
+  EXPECT_EQ(ledger.entries()[1].status, JobStatus::kFailed);
+  EXPECT_EQ(SummarizeLedger(plan).models_failed, 1);
+  Calls();
+
+  ::unsetenv("FAKE_FAIL");
+  const ReproductionRun retry = RunReproduction(plan, options_, false);
+  EXPECT_EQ(retry.models_done, 4);
+  EXPECT_EQ(retry.models_failed, 0);
+  // Only the failed model's remaining commands ran: its training was done.
+  const std::vector<std::string> calls = Calls();
+  EXPECT_EQ(calls.size(), 4u);
+  EXPECT_EQ(Ledger::Load(plan.dir).entries()[1].attempts, 2);
+}
+
+TEST_F(ReproductionTest, AFailedCorruptionStopsTheReproduction) {
+  const ReproductionPlan plan = PlanReproduction(Spec(), options_);
+  ::setenv("FAKE_FAIL", "testdata", 1);
+  EXPECT_THAT(testing::ErrorMessage<Error>(
+                  [&] { RunReproduction(plan, options_, false); }),
+              HasSubstr("corrupt c3d/take.c3d OC_05_G_03_BT_00: Could not "
+                        "find the checkpoint"));
+}
+
+TEST_F(ReproductionTest, CommandsScriptListsEveryCommandQuoted) {
+  const ReproductionPlan plan = PlanReproduction(Spec(), options_);
+  WriteCommandsScript(plan, "/work dir");
+  const std::string sh = ReadFile(plan.dir / "commands.sh");
+  EXPECT_THAT(sh, HasSubstr("cd '/work dir'\n"));
+  EXPECT_THAT(sh, HasSubstr("'task.files=[/data/c3d/take.c3d]'"));
+  EXPECT_THAT(sh, HasSubstr("# lsm seed 1\n"));
+  EXPECT_THAT(sh,
+              HasSubstr(" train scale=cpu train.max_epochs=2 "
+                        "normalization=log_softmax seed=1 hydra.run.dir="));
+}
+
+}  // namespace
+}  // namespace soma
