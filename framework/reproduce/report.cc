@@ -113,8 +113,12 @@ std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
         FindCell(cells, claim.worse, claim.worse_test, claim.metric);
     if (better && worse && better->Mean() && worse->Mean()) {
       outcome.gap = *better->Mean() - *worse->Mean();
-      if (better->SeedStd() && worse->SeedStd()) {
-        const double sb = *better->SeedStd(), sw = *worse->SeedStd();
+      // With one seed on a side, assume that side has the other's spread.
+      const std::optional<double> sb_opt = better->SeedStd();
+      const std::optional<double> sw_opt = worse->SeedStd();
+      if (sb_opt || sw_opt) {
+        const double sb = sb_opt.value_or(*sw_opt);
+        const double sw = sw_opt.value_or(*sb_opt);
         outcome.gap_se = std::sqrt(sb * sb / better->seeds_done() +
                                    sw * sw / worse->seeds_done());
       }
@@ -267,7 +271,9 @@ void WriteResultsMarkdown(const AblationSpec& spec,
         ours += fmt::format(" ± {:.2f} (s.e.)", *outcome.gap_se);
       }
       std::string verdict = "**" + outcome.verdict + "**";
-      if (outcome.gap && outcome.gap_se &&
+      // A "greater" claim whose gap is under two standard errors is not
+      // resolved by this many seeds.
+      if (c.kind == "greater" && outcome.gap && outcome.gap_se &&
           std::abs(*outcome.gap) < 2 * *outcome.gap_se) {
         verdict += " (within seed noise)";
       }

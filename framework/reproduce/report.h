@@ -43,7 +43,8 @@ struct ClaimOutcome {
   const AblationClaim* claim = nullptr;
   std::optional<double> gap;  // ours: better - worse, points
   /// Standard error of `gap` from the seed spread of both sides
-  /// (sqrt(s_b^2/n_b + s_w^2/n_w)); nullopt with fewer than two seeds.
+  /// (sqrt(s_b^2/n_b + s_w^2/n_w)); a side with one seed borrows the other
+  /// side's s; nullopt when neither side has two seeds.
   std::optional<double> gap_se;
   std::optional<double> paper_gap;  // the paper's, when known
   std::string verdict;              // pass | fail | not run

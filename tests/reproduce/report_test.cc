@@ -84,7 +84,8 @@ TEST(ReportTest, ClaimsAreCheckedWithTheirGaps) {
   EXPECT_EQ(out[0].verdict, "pass");
   EXPECT_DOUBLE_EQ(*out[0].gap, 7.0);
   EXPECT_DOUBLE_EQ(*out[0].paper_gap, 8.0);  // from the paper values
-  EXPECT_FALSE(out[0].gap_se);               // weak has one seed
+  // weak has one seed: it borrows base's seed std (1.0).
+  EXPECT_NEAR(*out[0].gap_se, std::sqrt(1.0 / 3 + 1.0 / 1), 1e-12);
   EXPECT_EQ(out[1].verdict, "fail");
   EXPECT_DOUBLE_EQ(*out[1].gap, -7.0);
   // Across tests: 97.0 (t0) vs 95.667 (t5), |gap| <= 2.
@@ -148,7 +149,8 @@ TEST(ReportTest, MarkdownMarksPartialTablesAndShowsClaims) {
   EXPECT_THAT(md, HasSubstr("| weak | five | not run |"));
   EXPECT_THAT(md, HasSubstr("| no_bank | zero | skipped |"));
   EXPECT_THAT(md, HasSubstr("- **no_bank**: needs the solver"));
-  EXPECT_THAT(md, HasSubstr("| +8.00 | +7.00 | **pass** |"));
+  EXPECT_THAT(md, HasSubstr("| +8.00 | +7.00 ± 1.15 (s.e.) | **pass** |"));
+  EXPECT_THAT(md, HasSubstr("| +1.00 | +1.33 ± 0.73 (s.e.) | **pass** |"));
   EXPECT_THAT(md, HasSubstr("**fail**"));
   EXPECT_THAT(md, HasSubstr("base@t0 − base@t5"));
   EXPECT_THAT(md, HasSubstr("+1.00 (Fig. 9) | — | **not run** |"));
