@@ -50,16 +50,25 @@ std::unique_ptr<BodySource> MakeMakeHumanSource(const ConfigNode& node) {
   ConfigReader reader(node);
   std::string dir;
   std::string rest_pose = "t_pose";
+  std::string proportions = "anthropometric";
   MakeHumanLoadOptions options;
   reader.Require("dir", &dir);
   reader.Read("rest_pose", &rest_pose);
+  reader.Read("proportions", &proportions);
+  reader.Read("upper_arm_ratio", &options.upper_arm_ratio);
   reader.Read("num_betas", &options.num_betas);
   reader.Read("metres_per_unit", &options.metres_per_unit);
   reader.Read("regressor_support_factor", &options.regressor_support_factor);
   reader.Check("rest_pose",
                rest_pose == "t_pose" || rest_pose == "asset",
                "rest_pose is t_pose or asset");
+  reader.Check("proportions",
+               proportions == "anthropometric" || proportions == "asset",
+               "proportions is anthropometric or asset");
   reader.Finish();
+  options.proportions = proportions == "anthropometric"
+                            ? MakeHumanLoadOptions::Proportions::kAnthropometric
+                            : MakeHumanLoadOptions::Proportions::kAsset;
   options.rest_pose = rest_pose == "t_pose"
                           ? MakeHumanLoadOptions::RestPose::kTPose
                           : MakeHumanLoadOptions::RestPose::kAsset;

@@ -755,6 +755,73 @@ RegressorFit FitJointRegressor(const Eigen::Vector3d& joint,
   return fit;
 }
 
+// ---------------------------------------------------------------------------
+// Anthropometric proportions.
+
+struct ProportionCorrection {
+  Eigen::Matrix3Xd vertex_displacement;  // 3 x V
+  Eigen::Matrix3Xd joint_displacement;   // 3 x J
+};
+
+/// Lengthens (or shortens) both upper arms of the rest template `vertices`
+/// with joints `joints` to `upper_arm_length` (see the file comment of
+/// makehuman_body.h): the elbow and its descendants move rigidly by the
+/// stretch s along shoulder -> elbow; a vertex moves by sum_j w_vj d_j with
+/// d_shoulder = t_v s (t_v: clamped normalised projection on the bone),
+/// d_j = s for the elbow and its descendants, 0 otherwise.
+ProportionCorrection UpperArmCorrection(const Eigen::Matrix3Xd& vertices,
+                                        const Eigen::Matrix3Xd& joints,
+                                        const std::vector<int>& parents,
+                                        const SparseRowMatrix& weights,
+                                        double upper_arm_length) {
+  const int num_vertices = static_cast<int>(vertices.cols());
+  const int num_joints = static_cast<int>(joints.cols());
+  ProportionCorrection out;
+  out.vertex_displacement = Eigen::Matrix3Xd::Zero(3, num_vertices);
+  out.joint_displacement = Eigen::Matrix3Xd::Zero(3, num_joints);
+  for (const auto& [shoulder, elbow] :
+       {std::pair<int, int>{kLeftShoulder, kLeftElbow},
+        std::pair<int, int>{kRightShoulder, kRightElbow}}) {
+    const Eigen::Vector3d origin = joints.col(shoulder);
+    const Eigen::Vector3d bone = joints.col(elbow) - origin;
+    const double length = bone.norm();
+    if (!(length > 1e-6)) {
+      throw IoError(fmt::format(
+          "MakeHuman body: joints '{}' and '{}' coincide, cannot correct the "
+          "upper arm",
+          JointMap()[shoulder].joint,
+          JointMap()[elbow].joint));
+    }
+    const Eigen::Vector3d stretch = (upper_arm_length - length) / length * bone;
+    // The elbow and everything below it (parents come first).
+    std::vector<char> below(num_joints, 0);
+    below[elbow] = 1;
+    for (int j = elbow + 1; j < num_joints; ++j) {
+      if (parents[j] >= 0 && below[parents[j]]) below[j] = 1;
+    }
+    for (int j = 0; j < num_joints; ++j) {
+      if (below[j]) out.joint_displacement.col(j) += stretch;
+    }
+    for (int v = 0; v < num_vertices; ++v) {
+      double factor = 0.0;
+      for (SparseRowMatrix::InnerIterator it(weights, v); it; ++it) {
+        const int j = static_cast<int>(it.col());
+        if (below[j]) {
+          factor += it.value();
+        } else if (j == shoulder) {
+          const double t = std::clamp(
+              (vertices.col(v) - origin).dot(bone) / (length * length),
+              0.0,
+              1.0);
+          factor += it.value() * t;
+        }
+      }
+      if (factor != 0.0) out.vertex_displacement.col(v) += factor * stretch;
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 void MakeHumanLoadOptions::Validate() const {
@@ -781,6 +848,12 @@ void MakeHumanLoadOptions::Validate() const {
                     "Violated constraint: "
                     "regressor_support_factor >= 1 (makehuman_body.h)",
                     regressor_support_factor));
+  }
+  if (!(upper_arm_ratio > 0.0 && upper_arm_ratio < 0.5)) {
+    throw ConfigError(
+        fmt::format("Invalid configuration. upper_arm_ratio = {}. Violated "
+                    "constraint: 0 < upper_arm_ratio < 0.5 (makehuman_body.h)",
+                    upper_arm_ratio));
   }
 }
 
@@ -1049,6 +1122,40 @@ BodyModel LoadMakeHumanBody(const std::filesystem::path& dir,
   body.skinning_weights.setFromTriplets(triplets.begin(), triplets.end());
   body.skinning_weights.makeCompressed();
 
+  // ---- Anthropometric proportions: lengthen the upper arms (see the file
+  // comment of makehuman_body.h). The stature direction is a uniform scaling
+  // about the floor centre, 0.04 x (template - pivot), so it scales the
+  // correction too; the other directions are deltas and stay.
+  const auto arm_lengths = [](const Eigen::Matrix3Xd& joints) {
+    return std::pair<double, double>(
+        (joints.col(kLeftElbow) - joints.col(kLeftShoulder)).norm(),
+        (joints.col(kLeftWrist) - joints.col(kLeftElbow)).norm());
+  };
+  const auto [asset_upper_arm, asset_forearm] = arm_lengths(joints_rest);
+  if (options.proportions ==
+      MakeHumanLoadOptions::Proportions::kAnthropometric) {
+    const double stature = body.template_vertices.row(2).maxCoeff() -
+                           body.template_vertices.row(2).minCoeff();
+    const ProportionCorrection correction =
+        UpperArmCorrection(body.template_vertices,
+                           joints_rest,
+                           body.parents,
+                           body.skinning_weights,
+                           options.upper_arm_ratio * stature);
+    body.template_vertices += correction.vertex_displacement;
+    joints_rest += correction.joint_displacement;
+    for (int k = 0; k < num_betas; ++k) {
+      if (MakeHumanShapeComponentNames()[k] != "stature") continue;
+      body.shape_dirs.col(k) +=
+          kStatureScalePerBeta * Eigen::Map<const Eigen::VectorXd>(
+                                     correction.vertex_displacement.data(),
+                                     correction.vertex_displacement.size());
+      joint_deltas_all.middleCols(k * num_joints, num_joints) +=
+          kStatureScalePerBeta * correction.joint_displacement;
+    }
+  }
+  const auto [upper_arm, forearm] = arm_lengths(joints_rest);
+
   // ---- Joint regressor fitted on the (posed, shifted) mean and components.
   triplets.clear();
   double max_residual = 0.0;
@@ -1087,6 +1194,10 @@ BodyModel LoadMakeHumanBody(const std::filesystem::path& dir,
     report->max_abs_regressor_weight = max_weight;
     report->regressor_nonzeros =
         static_cast<int>(body.joint_regressor.nonZeros());
+    report->asset_upper_arm_m = asset_upper_arm;
+    report->upper_arm_m = upper_arm;
+    report->asset_forearm_m = asset_forearm;
+    report->forearm_m = forearm;
   }
   return body;
 }

@@ -34,13 +34,14 @@
 // see below).
 //
 // Mean shape (betas = 0; stature 1.672 m in the T-pose, 1.659 m in the
-// asset pose, volume 0.056 m^3): MakeHuman's default human, i.e. the base mesh
-// plus the macro targets at gender 0.5, age 0.5 (25 years), muscle 0.5, weight
-// 0.5 and 1/3 of each ethnicity (MakeHuman's macro-modifier weighting:
-// universal-<gender>-<age>-<muscle>-<weight> targets weighted by the
-// product of the four slider weights, <race>-<gender>-<age> targets by race
-// x gender x age; sliders interpolate piecewise-linearly between the named
-// targets, e.g. weight 0..0.5 min->average, 0.5..1 average->max).
+// asset pose, volume 0.057 m^3; 0.056 with the asset proportions): MakeHuman's
+// default human, i.e. the base mesh plus the macro targets at gender 0.5, age
+// 0.5 (25 years), muscle 0.5, weight 0.5 and 1/3 of each ethnicity (MakeHuman's
+// macro-modifier weighting: universal-<gender>-<age>-<muscle>-<weight> targets
+// weighted by the product of the four slider weights, <race>-<gender>-<age>
+// targets by race x gender x age; sliders interpolate piecewise-linearly
+// between the named targets, e.g. weight 0..0.5 min->average, 0.5..1
+// average->max).
 //
 // Shape space (MakeHumanShapeComponentNames(); every component is a
 // displacement field, displacement = f(slider extremes) evaluated by the
@@ -59,6 +60,37 @@
 //   6 asian    0.5 (asian - default mix): likewise
 // Extrapolation beyond the sliders (|beta| > 1 for gender, > 2 otherwise)
 // stays linear. beta_stddev = 1.
+//
+// Proportions (measured, T-pose): shoulder-elbow joint distance 0.242 m at
+// the mean shape, 0.145 x stature (0.137-0.154 over age beta +2..-2, 0.145
+// along every other component); elbow-wrist 0.239 m, 0.143 x stature (0.132
+// at gender beta -1, 0.153 at +1). The rig's elbow is where the asset mesh
+// bends (the crossing of the upper-arm and forearm centre lines of the
+// A-pose, 5.5 mm away; makehuman_body_test.cc), so the short upper arm
+// (anthropometric tables: 0.186 x stature) is the mesh's own; it makes
+// `soma realism`'s upper-arm distances 24.5% shorter than the captures'.
+//
+// Proportions::kAnthropometric (default) therefore corrects the upper arm at
+// load time, after the rest pose and the skinning weights are built and
+// before the joint regressor is fitted: on each side the shoulder -> elbow
+// joint distance becomes upper_arm_ratio x stature (0.186, Drillis & Contini
+// 1966 via Winter, "Biomechanics and Motor Control of Human Movement"; the
+// stature of the rest template). The elbow and every joint below it (wrist,
+// hand, thumb, fingers) move rigidly by the stretch vector s along the bone,
+// so the forearm and hand keep their lengths exactly. Each body vertex moves
+// by sum_j w_vj d_j (w: the final skinning weights) with d_j = t_v s for the
+// shoulder joint (the upper-arm segment; t_v in [0, 1] the vertex's clamped
+// normalised projection on shoulder -> elbow, so the upper arm stretches
+// evenly instead of at the elbow crease), d_j = s for the elbow and its
+// descendants and 0 for every other joint. The shape directions stay as
+// they are, except that the stature direction (a uniform scaling) also
+// scales the correction, so the ratio holds for every stature beta; the
+// regressor is then fitted to the corrected template and joints. Measured
+// (T-pose, mean shape, stature 1.672 m): shoulder-elbow 0.2421 -> 0.3109 m,
+// elbow-wrist 0.2386 m unchanged; 4256 vertices move, no edge stretches more
+// than 1.35x (the bone: 1.28x), volume 0.0562 -> 0.0571 m^3; `soma
+// realism` upper arm -24.5% -> -4.6% (LSHO-LELB 0.272 -> 0.340 m, captures
+// 0.343-0.353 m). Proportions::kAsset keeps the asset's proportions.
 //
 // Rest pose. RestPose::kTPose (default, as body_model.h prescribes): the
 // asset's A-pose (arms ~45 degrees down, elbows slightly bent) is posed with
@@ -107,6 +139,16 @@ struct MakeHumanLoadOptions {
     kAsset,  // the base mesh's own A-pose
   };
   RestPose rest_pose = RestPose::kTPose;
+  /// Segment lengths (see the file comment).
+  enum class Proportions {
+    kAnthropometric,  // upper arm = upper_arm_ratio x stature, the default
+    kAsset,           // the asset mesh's own (upper arm 0.145 x stature)
+  };
+  Proportions proportions = Proportions::kAnthropometric;
+  /// Shoulder-elbow joint distance as a fraction of stature for
+  /// Proportions::kAnthropometric (Drillis & Contini 1966 / Winter: 0.186);
+  /// in (0, 0.5).
+  double upper_arm_ratio = 0.186;
   /// Number of shape components kept, in MakeHumanShapeComponentNames()
   /// order (0..7).
   int num_betas = 7;
@@ -135,6 +177,13 @@ struct MakeHumanLoadReport {
   double max_regressor_residual_m = 0.0;
   double max_abs_regressor_weight = 0.0;
   int regressor_nonzeros = 0;
+  /// Left shoulder-elbow and elbow-wrist joint distances of the rest
+  /// template (betas = 0) before and after the proportion correction
+  /// (equal for Proportions::kAsset), metres.
+  double asset_upper_arm_m = 0.0;
+  double upper_arm_m = 0.0;
+  double asset_forearm_m = 0.0;
+  double forearm_m = 0.0;
 };
 
 /// Loads the MakeHuman body from `dir` (see the file comment). Throws IoError

@@ -20,13 +20,22 @@ namespace {
 // Anatomical placement rules (rest T-pose frame: +X left, -Y forward, +Z up).
 // The skin point is where the ray from lerp(joint_a, joint_b, t) along `dir`
 // leaves the body (SkinVertexAlongRay: the nearest exit face); the marker
-// vertex is the hit triangle's nearest vertex. `mirror` rules also define the
-// other side's label (first letter L <-> R, joints mirrored, x negated).
+// vertex is the hit triangle's nearest vertex (Placement::kExtreme rules take
+// the cross-section's vertex furthest along `dir` instead). `mirror` rules
+// also define the other side's label (first letter L <-> R, joints mirrored,
+// x negated).
 
 /// Pseudo joint after the core joints: the centre of the cranium, measured on
 /// the skin (HeadCentre()). Head rules cast their rays from it.
 constexpr int kHeadCentre = kNumCoreJoints;
 constexpr int kNumRuleJoints = kNumCoreJoints + 1;
+
+/// How a rule finds its skin point. kRay: where the ray from
+/// lerp(joint_a, joint_b, t) along `dir` leaves the body. kExtreme: the skin
+/// vertex furthest along `dir` within the cross-section of the segment at
+/// lerp(joint_a, joint_b, t) (ExtremeSkinVertex), for landmarks defined as
+/// the most prominent point of a cross-section (the metatarsal heads).
+enum class Placement { kRay, kExtreme };
 
 struct Rule {
   const char* label;
@@ -36,6 +45,7 @@ struct Rule {
   double dx, dy, dz;
   bool mirror;
   const char* anatomy;
+  Placement placement = Placement::kRay;
 };
 
 constexpr bool M = true;
@@ -102,8 +112,18 @@ const Rule kRules[] = {
     {"LCLF", kLeftKnee, kLeftAnkle, 0.3, 0.2, 1.0, 0.0, M, "left calf"},
     {"LANK", kLeftAnkle, kLeftFoot, 0.0, 1.0, 0.0, 0.0, M, "left lateral malleolus"},
     {"LHEE", kLeftAnkle, kLeftFoot, 0.0, 0.0, 1.0, -0.45, M, "left calcaneus (heel)"},
-    {"LTOE", kLeftAnkle, kLeftFoot, 1.05, 0.0, -0.2, 1.0, M, "left second metatarsal head"},
-    {"LMT5", kLeftAnkle, kLeftFoot, 1.0, 1.0, 0.0, 0.2, M, "left fifth metatarsal head"},
+    // Forefoot. The foot joint sits at the ball of the foot over the third
+    // metatarsal (on MakeHuman it is the rig's toe-3-1 joint, the third MTP
+    // joint), so LTOE tilts medially from it onto the dorsum over the second
+    // metatarsal head. LMT5 is the lateral-most skin point of the forefoot
+    // 10% of the ankle -> foot joint distance (~1.3 cm) behind the foot joint:
+    // the metatarsal heads lie on an oblique line, the fifth behind the
+    // third. A ray from the foot joint (the old rule, t = 1.0) left the
+    // MakeHuman foot, whose toes are separate, through the side of the third
+    // toe and put LMT5 7 mm from LTOE; the captures have 0.066-0.085 m
+    // (HDM05/CMU per-side medians, mean 0.077 m).
+    {"LTOE", kLeftAnkle, kLeftFoot, 1.05, -0.6, -0.2, 1.0, M, "left second metatarsal head"},
+    {"LMT5", kLeftAnkle, kLeftFoot, 0.9, 1.0, 0.0, 0.0, M, "left fifth metatarsal head", Placement::kExtreme},
     {"LMT1", kLeftAnkle, kLeftFoot, 1.0, -1.0, 0.0, 0.2, M, "left first metatarsal head"},
     {"LFOOT", kLeftAnkle, kLeftFoot, 0.55, 0.0, 0.0, 1.0, M, "dorsum of the left mid-foot"},
     // Arms (T-pose, palms down: lateral = +Z, thumb = -Y).
@@ -144,6 +164,7 @@ struct ResolvedRule {
   int joint_a, joint_b;
   double t;
   Eigen::Vector3d dir;
+  Placement placement;
 };
 
 const std::map<std::string, ResolvedRule, std::less<>>& AllRules() {
@@ -152,7 +173,8 @@ const std::map<std::string, ResolvedRule, std::less<>>& AllRules() {
     for (const Rule& r : kRules) {
       const Eigen::Vector3d dir =
           Eigen::Vector3d(r.dx, r.dy, r.dz).normalized();
-      (*rules)[r.label] = {r.label, r.joint_a, r.joint_b, r.t, dir};
+      (*rules)[r.label] = {
+          r.label, r.joint_a, r.joint_b, r.t, dir, r.placement};
       if (r.mirror) {
         std::string other = r.label;
         other[0] = other[0] == 'L' ? 'R' : 'L';
@@ -160,7 +182,8 @@ const std::map<std::string, ResolvedRule, std::less<>>& AllRules() {
                            kMirrorJoint[r.joint_a],
                            kMirrorJoint[r.joint_b],
                            r.t,
-                           Eigen::Vector3d(-dir.x(), dir.y(), dir.z())};
+                           Eigen::Vector3d(-dir.x(), dir.y(), dir.z()),
+                           r.placement};
       }
     }
     return rules;
@@ -439,24 +462,63 @@ Eigen::Vector3d HeadCentre(const Eigen::Matrix3Xd& vertices,
                          head.z() + kHeadCentreHeight * (hi.z() - head.z()));
 }
 
+/// Cross-section of a segment for Placement::kExtreme: skin vertices within
+/// kExtremeHalfWidth of the plane through the origin perpendicular to the
+/// segment's horizontal direction, within kExtremeRadius of the origin (so
+/// the other limb never counts) and not above the origin's upper joint.
+constexpr double kExtremeHalfWidth = 0.01;
+constexpr double kExtremeRadius = 0.08;
+
+/// The vertex of the cross-section at `origin` furthest along `dir`; -1 if
+/// the cross-section is empty.
+int ExtremeSkinVertex(const Eigen::Vector3d& origin,
+                      const Eigen::Vector3d& segment,
+                      double max_z,
+                      const Eigen::Vector3d& dir,
+                      const Eigen::Matrix3Xd& vertices) {
+  Eigen::Vector3d normal(segment.x(), segment.y(), 0.0);
+  if (normal.norm() < 1e-9) return -1;
+  normal.normalize();
+  int best = -1;
+  double best_along = -std::numeric_limits<double>::max();
+  for (Eigen::Index v = 0; v < vertices.cols(); ++v) {
+    const Eigen::Vector3d d = vertices.col(v) - origin;
+    if (std::abs(d.dot(normal)) > kExtremeHalfWidth ||
+        d.norm() > kExtremeRadius || vertices(2, v) > max_z) {
+      continue;
+    }
+    const double along = d.dot(dir);
+    if (along > best_along) {
+      best_along = along;
+      best = static_cast<int>(v);
+    }
+  }
+  return best;
+}
+
 int PlaceByRule(const ResolvedRule& rule,
                 const Eigen::Matrix3Xd& vertices,
                 const Eigen::Matrix3Xi& faces,
                 const Eigen::Matrix3Xd& joints,
                 const std::string& body_name) {
-  const Eigen::Vector3d origin =
-      joints.col(rule.joint_a) +
-      rule.t * (joints.col(rule.joint_b) - joints.col(rule.joint_a));
-  const int vertex = SkinVertexAlongRay(origin, rule.dir, vertices, faces);
+  const Eigen::Vector3d a = joints.col(rule.joint_a);
+  const Eigen::Vector3d b = joints.col(rule.joint_b);
+  const Eigen::Vector3d origin = a + rule.t * (b - a);
+  const int vertex =
+      rule.placement == Placement::kExtreme
+          ? ExtremeSkinVertex(
+                origin, b - a, std::max(a.z(), b.z()), rule.dir, vertices)
+          : SkinVertexAlongRay(origin, rule.dir, vertices, faces);
   if (vertex < 0) {
-    throw InternalError(
-        fmt::format("marker {}: the placement ray from ({:.3f}, {:.3f}, "
-                    "{:.3f}) misses body '{}'",
-                    rule.label,
-                    origin.x(),
-                    origin.y(),
-                    origin.z(),
-                    body_name));
+    throw InternalError(fmt::format(
+        "marker {}: the placement {} at ({:.3f}, {:.3f}, "
+        "{:.3f}) finds no skin of body '{}'",
+        rule.label,
+        rule.placement == Placement::kExtreme ? "cross-section" : "ray",
+        origin.x(),
+        origin.y(),
+        origin.z(),
+        body_name));
   }
   return vertex;
 }

@@ -1,10 +1,12 @@
 #include "framework/body/makehuman_body.h"
 
 #include "framework/body/body_model.h"
+#include "framework/body/marker_layout.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/testing/testing.h"
 
+#include <Eigen/Eigenvalues>
 #include <fmt/format.h>
 #include <gtest/gtest.h>
 
@@ -15,6 +17,8 @@
 #include <iostream>
 #include <map>
 #include <string>
+#include <tuple>
+#include <utility>
 #include <vector>
 
 namespace soma {
@@ -36,26 +40,37 @@ struct Loaded {
   double seconds = 0.0;
 };
 
-const Loaded& LoadOnce(MakeHumanLoadOptions::RestPose rest_pose) {
-  static std::map<MakeHumanLoadOptions::RestPose, Loaded>* const cache =
-      new std::map<MakeHumanLoadOptions::RestPose, Loaded>();
-  auto it = cache->find(rest_pose);
+const Loaded& LoadOnce(MakeHumanLoadOptions::RestPose rest_pose,
+                       MakeHumanLoadOptions::Proportions proportions =
+                           MakeHumanLoadOptions::Proportions::kAnthropometric) {
+  using Key = std::pair<MakeHumanLoadOptions::RestPose,
+                        MakeHumanLoadOptions::Proportions>;
+  static std::map<Key, Loaded>* const cache = new std::map<Key, Loaded>();
+  const Key key(rest_pose, proportions);
+  auto it = cache->find(key);
   if (it == cache->end()) {
     MakeHumanLoadOptions options;
     options.rest_pose = rest_pose;
+    options.proportions = proportions;
     Loaded loaded;
     const auto start = std::chrono::steady_clock::now();
     loaded.body = LoadMakeHumanBody(AssetDir(), options, &loaded.report);
     loaded.seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start)
             .count();
-    it = cache->emplace(rest_pose, std::move(loaded)).first;
+    it = cache->emplace(key, std::move(loaded)).first;
   }
   return it->second;
 }
 
 const Loaded& TPose() {
   return LoadOnce(MakeHumanLoadOptions::RestPose::kTPose);
+}
+
+// The T-pose with the asset's own (short upper arm) proportions.
+const Loaded& AssetProportionsTPose() {
+  return LoadOnce(MakeHumanLoadOptions::RestPose::kTPose,
+                  MakeHumanLoadOptions::Proportions::kAsset);
 }
 
 double Stature(const Eigen::Matrix3Xd& v) {
@@ -433,6 +448,327 @@ TEST(MakeHumanBodyErrors, BadOptions) {
   options.num_betas = 3;
   options.metres_per_unit = 0.0;
   EXPECT_THROW(options.Validate(), ConfigError);
+  options.metres_per_unit = 0.1;
+  options.upper_arm_ratio = 0.0;
+  EXPECT_THROW(options.Validate(), ConfigError);
+  options.upper_arm_ratio = 0.6;
+  EXPECT_THROW(options.Validate(), ConfigError);
+  options.upper_arm_ratio = 0.186;
+  EXPECT_NO_THROW(options.Validate());
+}
+
+// The centre of the mesh's cross-section perpendicular to `axis` at `point`:
+// the mean of the skin vertices where 24 rays in that plane leave the body,
+// recentred twice.
+Eigen::Vector3d SectionCentre(Eigen::Vector3d point,
+                              const Eigen::Vector3d& axis,
+                              const BodyModel& body,
+                              const Eigen::Matrix3Xd& vertices) {
+  const Eigen::Vector3d u = axis.unitOrthogonal();
+  const Eigen::Vector3d w = axis.cross(u);
+  for (int iteration = 0; iteration < 3; ++iteration) {
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    int count = 0;
+    for (int k = 0; k < 24; ++k) {
+      const double angle = 2.0 * M_PI * k / 24;
+      const int v =
+          SkinVertexAlongRay(point,
+                             std::cos(angle) * u + std::sin(angle) * w,
+                             vertices,
+                             body.faces);
+      if (v < 0) continue;
+      sum += vertices.col(v);
+      ++count;
+    }
+    if (count < 12) break;
+    point = sum / count;
+  }
+  return point;
+}
+
+// Least-squares line (centroid, unit direction along a -> b) through the
+// cross-section centres between lerp(a, b, t0) and lerp(a, b, t1).
+std::pair<Eigen::Vector3d, Eigen::Vector3d> CentreLine(
+    const BodyModel& body,
+    const Eigen::Matrix3Xd& vertices,
+    const Eigen::Vector3d& a,
+    const Eigen::Vector3d& b,
+    double t0,
+    double t1) {
+  const Eigen::Vector3d axis = (b - a).normalized();
+  std::vector<Eigen::Vector3d> centres;
+  for (double t = t0; t <= t1 + 1e-9; t += 0.05)
+    centres.push_back(SectionCentre(a + t * (b - a), axis, body, vertices));
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& c : centres) mean += c;
+  mean /= static_cast<double>(centres.size());
+  Eigen::Matrix3d scatter = Eigen::Matrix3d::Zero();
+  for (const auto& c : centres) scatter += (c - mean) * (c - mean).transpose();
+  Eigen::Vector3d dir = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(scatter)
+                            .eigenvectors()
+                            .col(2);
+  if (dir.dot(b - a) < 0.0) dir = -dir;
+  return {mean, dir};
+}
+
+// Where the MakeHuman arm bends. The asset pose has the elbows flexed ~40
+// degrees, so the mesh itself says where its elbow is: the crossing of the
+// upper-arm and forearm centre lines (fitted to cross-section centres away
+// from the joints). The rig's elbow (joint-l-elbow cube) sits there: 5.5 mm
+// away for the mean shape, 4-9 mm at gender -1 / +1. So the MakeHuman upper
+// arm is short in the mesh itself (shoulder-elbow 0.242 m, 0.145 x stature
+// in the T-pose, forearm 0.239 m; Winter's anthropometric tables: 0.186 and
+// 0.146 x stature), not misplaced by the rig (issue #3); hence the loader's
+// Proportions::kAnthropometric correction, tested below. Checked on the
+// asset's own proportions.
+TEST(MakeHumanBody, ElbowJointIsWhereTheAssetMeshBends) {
+  SKIP_WITHOUT_ASSETS();
+  const BodyModel& body = LoadOnce(MakeHumanLoadOptions::RestPose::kAsset,
+                                   MakeHumanLoadOptions::Proportions::kAsset)
+                              .body;
+  for (const double gender : {0.0, -1.0, 1.0}) {
+    Eigen::VectorXd betas = Eigen::VectorXd::Zero(body.num_betas());
+    betas(1) = gender;  // MakeHumanShapeComponentNames()[1]
+    const Eigen::Matrix3Xd vertices = body.ShapedVertices(betas);
+    const Eigen::Matrix3Xd joints = body.RestJoints(vertices);
+    for (const int side : {0, 1}) {
+      if (gender != 0.0 && side == 1) continue;  // symmetric mesh
+      SCOPED_TRACE(fmt::format("gender {} side {}", gender, side));
+      const Eigen::Vector3d shoulder = joints.col(kLeftShoulder + side);
+      const Eigen::Vector3d elbow = joints.col(kLeftElbow + side);
+      const Eigen::Vector3d wrist = joints.col(kLeftWrist + side);
+      const auto [p1, d1] =
+          CentreLine(body, vertices, shoulder, elbow, 0.25, 0.8);
+      const auto [p2, d2] = CentreLine(body, vertices, elbow, wrist, 0.2, 0.8);
+      const double flexion = std::acos(d1.dot(d2)) * 180.0 / M_PI;
+      EXPECT_GT(flexion, 25.0);  // bent enough to locate the crossing
+      const Eigen::Vector3d w = p1 - p2;
+      const double c = d1.dot(d2);
+      const double s1 = (c * d2.dot(w) - d1.dot(w)) / (1.0 - c * c);
+      const double s2 = (d2.dot(w) - c * d1.dot(w)) / (1.0 - c * c);
+      const Eigen::Vector3d q1 = p1 + s1 * d1;
+      const Eigen::Vector3d q2 = p2 + s2 * d2;
+      EXPECT_LT((q1 - q2).norm(), 0.01);  // the centre lines do cross
+      const Eigen::Vector3d bend = 0.5 * (q1 + q2);
+      EXPECT_LT((bend - elbow).norm(), 0.015);
+      const double stature =
+          vertices.row(2).maxCoeff() - vertices.row(2).minCoeff();
+      std::cout << fmt::format(
+                       "[ MakeHuman ] gender {:+.0f} side {}: flexion {:.1f} "
+                       "deg, bend - elbow joint {:.4f} m; shoulder-elbow "
+                       "{:.4f} m ({:.3f} x stature), elbow-wrist {:.4f} m "
+                       "({:.3f} x stature)",
+                       gender,
+                       side,
+                       flexion,
+                       (bend - elbow).norm(),
+                       (elbow - shoulder).norm(),
+                       (elbow - shoulder).norm() / stature,
+                       (wrist - elbow).norm(),
+                       (wrist - elbow).norm() / stature)
+                << std::endl;
+    }
+  }
+}
+
+// Proportions::kAnthropometric: the upper arm (shoulder-elbow joint distance)
+// is 0.186 x stature (Drillis & Contini / Winter) instead of the asset's
+// 0.145; the forearm, hand and every other joint stay where they were.
+TEST(MakeHumanBody, AnthropometricUpperArmKeepsTheForearm) {
+  SKIP_WITHOUT_ASSETS();
+  const Loaded& corrected = TPose();
+  const Loaded& asset = AssetProportionsTPose();
+  const BodyModel& body = corrected.body;
+  const BodyModel& original = asset.body;
+  const Eigen::Matrix3Xd joints = body.RestJoints(body.template_vertices);
+  const Eigen::Matrix3Xd joints0 =
+      original.RestJoints(original.template_vertices);
+  const double stature = Stature(body.template_vertices);
+  const double stature0 = Stature(original.template_vertices);
+  EXPECT_NEAR(stature, stature0, 1e-3);  // T-pose: the arms are horizontal
+  const auto length = [](const Eigen::Matrix3Xd& j, int a, int b) {
+    return (j.col(a) - j.col(b)).norm();
+  };
+  for (const int side : {0, 1}) {
+    SCOPED_TRACE(side);
+    const int shoulder = kLeftShoulder + side;
+    const int elbow = kLeftElbow + side;
+    const int wrist = kLeftWrist + side;
+    const int hand = kLeftHand + side;
+    // The asset: 0.2421 m = 0.145 x stature (measured).
+    EXPECT_NEAR(length(joints0, shoulder, elbow), 0.2421, 1e-3);
+    EXPECT_NEAR(length(joints0, shoulder, elbow) / stature0, 0.145, 1e-3);
+    // Corrected: 0.186 x stature within 1 mm.
+    EXPECT_NEAR(length(joints, shoulder, elbow), 0.186 * stature, 1e-3);
+    // Forearm and hand unchanged; the elbow moved along the bone.
+    EXPECT_NEAR(
+        length(joints, elbow, wrist), length(joints0, elbow, wrist), 1e-4);
+    EXPECT_NEAR(length(joints0, elbow, wrist), 0.2386, 1e-3);
+    EXPECT_NEAR(
+        length(joints, wrist, hand), length(joints0, wrist, hand), 1e-4);
+    const Eigen::Vector3d stretch = joints.col(elbow) - joints0.col(elbow);
+    EXPECT_GT(stretch.norm(), 0.06);
+    EXPECT_GT(stretch.normalized().dot(
+                  (joints0.col(elbow) - joints0.col(shoulder)).normalized()),
+              1.0 - 1e-6);
+  }
+  EXPECT_NEAR(asset.report.upper_arm_m, asset.report.asset_upper_arm_m, 1e-12);
+  EXPECT_NEAR(
+      corrected.report.asset_upper_arm_m, asset.report.asset_upper_arm_m, 1e-9);
+  EXPECT_NEAR(corrected.report.upper_arm_m, 0.186 * stature, 1e-6);
+  EXPECT_NEAR(
+      corrected.report.forearm_m, corrected.report.asset_forearm_m, 1e-9);
+  // Elbows and the joints below them moved rigidly; the others not at all.
+  for (int j = 0; j < body.num_joints(); ++j) {
+    SCOPED_TRACE(body.joint_names[j]);
+    int a = j;
+    while (a >= 0 && a != kLeftElbow && a != kRightElbow) a = body.parents[a];
+    const Eigen::Vector3d moved = joints.col(j) - joints0.col(j);
+    if (a < 0) {
+      EXPECT_LT(moved.norm(), 1e-4);
+    } else {
+      EXPECT_LT((moved - (joints.col(a) - joints0.col(a))).norm(), 1e-4);
+    }
+  }
+  // The ratio holds along the stature direction (a uniform scaling).
+  for (const double beta : {-2.0, 2.0}) {
+    Eigen::VectorXd betas = Eigen::VectorXd::Zero(body.num_betas());
+    betas(0) = beta;  // stature
+    const Eigen::Matrix3Xd shaped = body.ShapedVertices(betas);
+    const Eigen::Matrix3Xd shaped_joints = body.RestJoints(shaped);
+    EXPECT_NEAR(length(shaped_joints, kLeftShoulder, kLeftElbow),
+                0.186 * Stature(shaped),
+                1e-3)
+        << beta;
+  }
+  std::cout << fmt::format(
+                   "[ MakeHuman ] upper arm {:.4f} -> {:.4f} m ({:.3f} -> "
+                   "{:.3f} x stature), forearm {:.4f} -> {:.4f} m",
+                   corrected.report.asset_upper_arm_m,
+                   corrected.report.upper_arm_m,
+                   corrected.report.asset_upper_arm_m / stature,
+                   corrected.report.upper_arm_m / stature,
+                   corrected.report.asset_forearm_m,
+                   corrected.report.forearm_m)
+            << std::endl;
+}
+
+// The correction deforms the mesh smoothly: the upper arm stretches evenly
+// (no edge longer than the bone's stretch factor allows, which a stretch at
+// the elbow crease alone would exceed), no triangle folds over, the topology
+// is the asset's, and the volume grows by about an upper-arm cylinder's
+// worth.
+TEST(MakeHumanBody, AnthropometricCorrectionKeepsTheMeshSane) {
+  SKIP_WITHOUT_ASSETS();
+  const BodyModel& body = TPose().body;
+  const BodyModel& original = AssetProportionsTPose().body;
+  ASSERT_EQ(body.faces, original.faces);
+  EXPECT_EQ(body.skinning_weights.nonZeros(),
+            original.skinning_weights.nonZeros());
+  const double factor =
+      TPose().report.upper_arm_m / TPose().report.asset_upper_arm_m;  // ~1.285
+  double max_edge_ratio = 0.0;
+  double min_normal_dot = 1.0;
+  double volume = 0.0;
+  double volume0 = 0.0;
+  int moved = 0;
+  for (int f = 0; f < body.num_faces(); ++f) {
+    const Eigen::Vector3d a = body.template_vertices.col(body.faces(0, f));
+    const Eigen::Vector3d b = body.template_vertices.col(body.faces(1, f));
+    const Eigen::Vector3d c = body.template_vertices.col(body.faces(2, f));
+    const Eigen::Vector3d a0 =
+        original.template_vertices.col(original.faces(0, f));
+    const Eigen::Vector3d b0 =
+        original.template_vertices.col(original.faces(1, f));
+    const Eigen::Vector3d c0 =
+        original.template_vertices.col(original.faces(2, f));
+    for (const auto& [p, q, p0, q0] : {std::tuple{a, b, a0, b0},
+                                       std::tuple{b, c, b0, c0},
+                                       std::tuple{c, a, c0, a0}}) {
+      max_edge_ratio =
+          std::max(max_edge_ratio, (p - q).norm() / (p0 - q0).norm());
+    }
+    const Eigen::Vector3d n = (b - a).cross(c - a);
+    const Eigen::Vector3d n0 = (b0 - a0).cross(c0 - a0);
+    if (n.norm() > 1e-12 && n0.norm() > 1e-12)
+      min_normal_dot =
+          std::min(min_normal_dot, n.normalized().dot(n0.normalized()));
+    volume += a.dot(b.cross(c)) / 6.0;
+    volume0 += a0.dot(b0.cross(c0)) / 6.0;
+  }
+  for (int v = 0; v < body.num_vertices(); ++v) {
+    if ((body.template_vertices.col(v) - original.template_vertices.col(v))
+            .norm() > 1e-9)
+      ++moved;
+  }
+  EXPECT_LT(max_edge_ratio, factor + 0.1);
+  EXPECT_GT(min_normal_dot, 0.5);
+  EXPECT_GT(volume, volume0);
+  EXPECT_LT(volume, volume0 + 0.004);  // upper arms: 2 x ~pi 0.045^2 0.07
+  EXPECT_GT(moved, 1000);
+  EXPECT_LT(moved, body.num_vertices() / 2);
+  std::cout << fmt::format(
+                   "[ MakeHuman ] correction: {} vertices moved, max edge "
+                   "ratio {:.3f} (bone {:.3f}), min normal dot {:.3f}, "
+                   "volume {:.4f} -> {:.4f} m^3",
+                   moved,
+                   max_edge_ratio,
+                   factor,
+                   min_normal_dot,
+                   volume0,
+                   volume)
+            << std::endl;
+}
+
+// As `soma realism` measures it: on the cmu41 layout of the mean shape, the
+// shoulder-elbow marker distance is within 10% of the captures' 0.343 m
+// (HDM05 / CMU takes, LSHO-LELB 0.343-0.353 m); with the asset's
+// proportions it is not.
+TEST(MakeHumanBody, UpperArmMarkersMatchRealCaptures) {
+  SKIP_WITHOUT_ASSETS();
+  const auto marker_distance =
+      [](const BodyModel& body, const char* a, const char* b) {
+        const MarkerLayout layout = MakeBuiltinLayout(body, "cmu41");
+        const Eigen::Matrix3Xd markers =
+            MarkerPositions(layout,
+                            body.template_vertices,
+                            VertexNormals(body.template_vertices, body.faces));
+        const int i = layout.FindLabel(a);
+        const int j = layout.FindLabel(b);
+        EXPECT_GE(i, 0);
+        EXPECT_GE(j, 0);
+        if (i < 0 || j < 0) return 0.0;
+        return (markers.col(i) - markers.col(j)).norm();
+      };
+  constexpr double kRealShoulderElbow = 0.343;
+  constexpr double kRealElbowWrist = 0.272;
+  const BodyModel& body = TPose().body;
+  const BodyModel& original = AssetProportionsTPose().body;
+  for (const auto& [a, b] :
+       {std::pair{"LSHO", "LELB"}, std::pair{"RSHO", "RELB"}}) {
+    SCOPED_TRACE(a);
+    const double d = marker_distance(body, a, b);
+    const double d0 = marker_distance(original, a, b);
+    EXPECT_LT(std::abs(d / kRealShoulderElbow - 1.0), 0.10) << d;
+    EXPECT_GT(std::abs(d0 / kRealShoulderElbow - 1.0), 0.10) << d0;
+    std::cout << fmt::format(
+                     "[ MakeHuman ] {}-{}: {:.4f} m (asset proportions "
+                     "{:.4f} m), real {:.3f} m",
+                     a,
+                     b,
+                     d,
+                     d0,
+                     kRealShoulderElbow)
+              << std::endl;
+  }
+  // The forearm markers stay as they were (and near the captures').
+  const double forearm = marker_distance(body, "LELB", "LWRA");
+  EXPECT_NEAR(forearm, marker_distance(original, "LELB", "LWRA"), 0.005);
+  EXPECT_LT(std::abs(forearm / kRealElbowWrist - 1.0), 0.15) << forearm;
+  std::cout << fmt::format("[ MakeHuman ] LELB-LWRA: {:.4f} m, real {:.3f} m",
+                           forearm,
+                           kRealElbowWrist)
+            << std::endl;
 }
 
 }  // namespace

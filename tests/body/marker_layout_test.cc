@@ -635,5 +635,51 @@ TEST(BuiltinLayouts, HeadMarkersMatchRealCapturesOnTheMakeHumanBody) {
   EXPECT_EQ(vids.size(), static_cast<size_t>(layout.num_markers()));
 }
 
+// Forefoot markers. Real captures (HDM_mm_01-02_03_120 and cmu_01_01, median
+// over frames per side): LTOE-LMT5 0.073 / 0.066 m and 0.085 / 0.084 m.
+void ExpectRealisticForefoot(const BodyModel& body) {
+  const MarkerLayout layout = MakeBuiltinLayout(body, "soma53");
+  const Eigen::Matrix3Xd p =
+      MarkerPositions(layout,
+                      body.template_vertices,
+                      VertexNormals(body.template_vertices, body.faces));
+  const auto at = [&](const char* label) {
+    return Eigen::Vector3d(p.col(layout.FindLabel(label)));
+  };
+  for (const char* side : {"L", "R"}) {
+    const std::string s(side);
+    const Eigen::Vector3d toe = at((s + "TOE").c_str());
+    const Eigen::Vector3d mt5 = at((s + "MT5").c_str());
+    const Eigen::Vector3d mt1 = at((s + "MT1").c_str());
+    const double sign = s == "L" ? 1.0 : -1.0;  // lateral is +X on the left
+    EXPECT_GT((toe - mt5).norm(), 0.05) << body.name << " " << s << "TOE-MT5";
+    EXPECT_LT((toe - mt5).norm(), 0.10) << body.name << " " << s << "TOE-MT5";
+    // MT5 on the lateral border, MT1 on the medial one, LTOE between them.
+    EXPECT_GT(sign * (mt5.x() - toe.x()), 0.03) << body.name << " " << s;
+    EXPECT_GT(sign * (toe.x() - mt1.x()), 0.0) << body.name << " " << s;
+    EXPECT_GT((mt1 - mt5).norm(), 0.07) << body.name << " " << s;
+    // Off the floor and on the forefoot, in front of the ankle.
+    EXPECT_GT(mt5.z(), 0.0) << body.name << " " << s;
+    EXPECT_LT(mt5.y(), at((s + "ANK").c_str()).y() - 0.06)
+        << body.name << " " << s;
+  }
+}
+
+TEST(BuiltinLayouts, ForefootMarkersMatchRealCapturesOnTheProceduralBody) {
+  ExpectRealisticForefoot(ProceduralBody());
+}
+
+// The MakeHuman foot joint is the third MTP joint between separate toes: a
+// ray cast laterally from it left through the web of the third toe and put
+// LMT5 7 mm from LTOE.
+TEST(BuiltinLayouts, ForefootMarkersMatchRealCapturesOnTheMakeHumanBody) {
+  const std::filesystem::path dir =
+      soma::testing::SharedDataDir() / "body/makehuman";
+  if (!std::filesystem::is_directory(dir)) {
+    GTEST_SKIP() << "MakeHuman assets not found at " << dir;
+  }
+  ExpectRealisticForefoot(LoadMakeHumanBody(dir));
+}
+
 }  // namespace
 }  // namespace soma
