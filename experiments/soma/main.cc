@@ -4,6 +4,7 @@
 //   soma                        the default task on the default config
 //   soma <command> [overrides]  a task (train, label, ...) = task=<command>
 //   soma reproduce <name>       a paper table from ablations/<name>.yaml
+//   soma solve <take.c3d>       fit the body to a labelled capture
 //   soma -m a=1,2 b=x,y         a Hydra-style multirun sweep
 #include "framework/config/app.h"
 #include "framework/core/build_info.h"
@@ -12,6 +13,7 @@
 #include "framework/tasks/task.h"
 
 #include <filesystem>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -20,10 +22,14 @@ int main(int argc, char** argv) {
   std::vector<std::string> args(argv + 1, argv + argc);
   // `soma <command> ...` selects the task config group option <command>.
   if (!args.empty() && soma::GetRegistry<soma::Task>().Has(args.front())) {
-    // `soma reproduce <name>` names the ablation spec positionally.
-    if (args.front() == "reproduce" && args.size() > 1 &&
+    // A command's main input may be given positionally:
+    // `soma reproduce table5`, `soma solve take.c3d`, `soma label take.c3d`.
+    static const std::map<std::string, std::string> kPositional = {
+        {"reproduce", "ablation"}, {"solve", "input"}, {"label", "input"}};
+    const auto positional = kPositional.find(args.front());
+    if (positional != kPositional.end() && args.size() > 1 &&
         args[1].find('=') == std::string::npos && args[1].front() != '-') {
-      args[1] = "task.ablation=" + args[1];
+      args[1] = "task." + positional->second + "=" + args[1];
     }
     args.front() = "task=" + args.front();
   }

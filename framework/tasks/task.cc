@@ -14,6 +14,7 @@ void RegisterInspectTask(Registry<Task>& registry);
 void RegisterLabelTask(Registry<Task>& registry);
 void RegisterRealismTask(Registry<Task>& registry);
 void RegisterReproduceTask(Registry<Task>& registry);
+void RegisterSolveTask(Registry<Task>& registry);
 void RegisterSynthTask(Registry<Task>& registry);
 void RegisterTrainTask(Registry<Task>& registry);
 
@@ -27,6 +28,7 @@ void RegisterTasks() {
   RegisterLabelTask(registry);
   RegisterRealismTask(registry);
   RegisterReproduceTask(registry);
+  RegisterSolveTask(registry);
   RegisterSynthTask(registry);
   RegisterTrainTask(registry);
   RegisterConfigGroup<Task>("task");

@@ -1,0 +1,237 @@
+#include "framework/solve/body_solver.h"
+
+#include "framework/config/decode.h"
+#include "framework/core/error.h"
+#include "framework/core/logging.h"
+#include "framework/core/timer.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <exception>
+#include <thread>
+
+namespace soma {
+namespace {
+
+void DecodeSolver(const ConfigNode& node, SolverOptions* o) {
+  ConfigReader r(node);
+  r.Read("trust_region", &o->trust_region);
+  r.Read("linear_solver", &o->linear_solver);
+  r.Read("max_iterations", &o->max_iterations);
+  r.Read("function_tolerance", &o->function_tolerance);
+  r.Read("parameter_tolerance", &o->parameter_tolerance);
+  r.Read("gradient_tolerance", &o->gradient_tolerance);
+  r.Read("num_threads", &o->num_threads);
+  r.Finish();
+}
+
+}  // namespace
+
+void BodySolveOptions::Validate() const {
+  if (pose_prior != "procedural" && pose_prior != "zero_mean" &&
+      pose_prior != "none") {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. solver.pose_prior = {}. Violated constraint: "
+        "procedural | zero_mean | none (body_solver.cc)",
+        pose_prior));
+  }
+  if (threads < 1 || threads > 256) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. solver.threads = {}. Violated constraint: "
+        "1 <= threads <= 256 (body_solver.cc)",
+        threads));
+  }
+  if (!(prior_stddev > 0) || start < 0 || stride < 1 ||
+      (end >= 0 && end <= start)) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. solver.start/end/stride/prior_stddev = "
+        "{}/{}/{}/{}. Violated constraint: start >= 0, end = -1 or end > "
+        "start, stride >= 1, prior_stddev > 0 (body_solver.cc)",
+        start,
+        end,
+        stride,
+        prior_stddev));
+  }
+  stagei.Validate();
+  stageii.Validate();
+}
+
+BodySolveOptions DecodeBodySolveOptions(const ConfigNode& node) {
+  BodySolveOptions o;
+  ConfigReader r(node);
+  r.Read("pose_prior", &o.pose_prior);
+  r.Read("prior_stddev", &o.prior_stddev);
+  r.Read("start", &o.start);
+  r.Read("end", &o.end);
+  r.Read("stride", &o.stride);
+  r.Read("threads", &o.threads);
+  if (const ConfigNode* c = r.Child("ceres")) {
+    DecodeSolver(*c, &o.stageii.solver);
+    const std::string linear = o.stagei.solver.linear_solver;
+    DecodeSolver(*c, &o.stagei.solver);
+    // Stage I couples frames through the shape: keep its Schur solver
+    // (dense_schur) when the stage II default dense_qr is given.
+    if (o.stagei.solver.linear_solver == "dense_qr") {
+      o.stagei.solver.linear_solver = linear;
+    }
+  }
+  if (const ConfigNode* c = r.Child("stagei")) {
+    ConfigReader s(*c);
+    StageIOptions& x = o.stagei;
+    s.Read("num_frames", &x.num_frames);
+    s.Read("min_available", &x.min_available);
+    s.Read("min_available_floor", &x.min_available_floor);
+    int64_t seed = static_cast<int64_t>(x.seed);
+    s.Read("seed", &seed);
+    x.seed = static_cast<uint64_t>(seed);
+    s.Read("annealing", &x.annealing);
+    s.Read("data_weight", &x.data_weight);
+    s.Read("marker_norm", &x.marker_norm);
+    s.Read("prior_weight", &x.prior_weight);
+    s.Read("init_weight", &x.init_weight);
+    s.Read("beta_weight", &x.beta_weight);
+    s.Read("surface_weight", &x.surface_weight);
+    s.Read("optimize_betas", &x.optimize_betas);
+    s.Read("optimize_toes", &x.optimize_toes);
+    s.Finish();
+  }
+  if (const ConfigNode* c = r.Child("stageii")) {
+    ConfigReader s(*c);
+    StageIIOptions& x = o.stageii;
+    s.Read("data_weight", &x.data_weight);
+    s.Read("marker_norm", &x.marker_norm);
+    s.Read("prior_weight", &x.prior_weight);
+    s.Read("missing_prior_gain", &x.missing_prior_gain);
+    s.Read("velocity_weight", &x.velocity_weight);
+    s.Read("first_frame_prior_scales", &x.first_frame_prior_scales);
+    s.Read("min_markers", &x.min_markers);
+    s.Read("max_gap", &x.max_gap);
+    s.Read("optimize_toes", &x.optimize_toes);
+    s.Finish();
+  }
+  r.Finish();
+  o.Validate();
+  return o;
+}
+
+std::unique_ptr<PosePrior> MakePosePrior(const BodyModel& body,
+                                         const BodySolveOptions& options) {
+  if (options.pose_prior == "none") return nullptr;
+  if (options.pose_prior == "zero_mean") {
+    return std::make_unique<GaussianPosePrior>(
+        GaussianPosePrior::ZeroMean(body.num_joints(), options.prior_stddev));
+  }
+  return std::make_unique<GaussianPosePrior>(
+      ProceduralPosePrior(body, options.procedural_prior));
+}
+
+BodySolveResult SolveBody(const BodyModel& body,
+                          const MarkerLayout& layout,
+                          const LabelledMarkers& markers,
+                          const BodySolveOptions& options) {
+  options.Validate();
+  if (static_cast<int>(markers.labels.size()) != layout.num_markers()) {
+    throw ShapeError("SolveBody: markers were matched to another layout");
+  }
+  if (markers.num_frames() == 0) throw Error("SolveBody: no frames");
+  const std::unique_ptr<PosePrior> prior = MakePosePrior(body, options);
+  std::vector<int> vids;
+  std::vector<double> distances;
+  for (const MarkerLayout::Marker& m : layout.markers) {
+    vids.push_back(m.vertex_ids.at(0));
+    distances.push_back(m.distance_from_skin);
+  }
+  MarkerModel model(body, vids);
+
+  BodySolveResult result;
+  const std::vector<int> picked =
+      PickStageIFrames(markers.frames, options.stagei);
+  std::vector<Eigen::Matrix3Xd> stagei_frames;
+  for (int f : picked) stagei_frames.push_back(markers.frames[f]);
+  result.stagei = SolveStageI(
+      body, &model, distances, stagei_frames, prior.get(), options.stagei);
+  result.stagei.frames = picked;
+  SOMA_LOG(INFO,
+           "solve: stage I on {} frames: {}",
+           picked.size(),
+           result.stagei.summary.BriefReport());
+  if (!result.stagei.summary.usable()) {
+    throw Error(fmt::format("solve: stage I failed: {}",
+                            result.stagei.summary.message));
+  }
+
+  SolveOutput& out = result.output;
+  out.body = body.name;
+  out.joint_names = body.joint_names;
+  out.labels = markers.labels;
+  out.frame_rate = markers.frame_rate / options.stride;
+  out.betas = result.stagei.betas;
+  out.markers_latent = model.latent_markers();
+  out.marker_offsets = model.offsets();
+  out.marker_vertex_ids = vids;
+  out.stagei_frames = picked;
+
+  const int end = options.end < 0 ? markers.num_frames()
+                                  : std::min(options.end, markers.num_frames());
+  std::vector<int> frames;
+  for (int t = options.start; t < end; t += options.stride) frames.push_back(t);
+  const int count = static_cast<int>(frames.size());
+  out.frame_params.resize(count);
+  out.observed.resize(count);
+  out.simulated.resize(count);
+  out.summaries.resize(count);
+  const Timer timer;
+  // Contiguous chunks, one StageIISolver (warm-start history) each.
+  const auto solve_chunk = [&](int begin, int stop) {
+    StageIISolver solver(&model, prior.get(), options.stageii);
+    for (int i = begin; i < stop; ++i) {
+      const int t = frames[i];
+      Eigen::VectorXd params;
+      SolveSummary summary = solver.SolveFrame(t, markers.frames[t], &params);
+      Eigen::Matrix3Xd sim =
+          Eigen::Matrix3Xd::Constant(3, model.num_markers(), std::nan(""));
+      if (summary.usable()) model.Evaluate(params.data(), {}, &sim, nullptr);
+      if (summary.termination != SolveTermination::kConverged) {
+        SOMA_LOG(DEBUG, "solve: {}", summary.BriefReport());
+      }
+      out.frame_params[i] = std::move(params);
+      out.observed[i] = markers.frames[t];
+      out.simulated[i] = std::move(sim);
+      out.summaries[i] = std::move(summary);
+    }
+  };
+  const int threads = std::max(1, std::min(options.threads, count));
+  if (threads == 1) {
+    solve_chunk(0, count);
+  } else {
+    std::vector<std::thread> workers;
+    std::vector<std::exception_ptr> errors(threads);
+    for (int k = 0; k < threads; ++k) {
+      const int begin = static_cast<int>(int64_t{count} * k / threads);
+      const int stop = static_cast<int>(int64_t{count} * (k + 1) / threads);
+      workers.emplace_back([&, k, begin, stop] {
+        try {
+          solve_chunk(begin, stop);
+        } catch (...) {
+          errors[k] = std::current_exception();
+        }
+      });
+    }
+    for (std::thread& w : workers) w.join();
+    for (const std::exception_ptr& e : errors) {
+      if (e) std::rethrow_exception(e);
+    }
+  }
+  const double seconds = timer.ElapsedSeconds();
+  result.stats = Summarize(out.summaries);
+  result.stageii_frames_per_s =
+      seconds > 0 ? out.summaries.size() / seconds : 0.0;
+  SOMA_LOG(INFO,
+           "solve: stage II {} ({:.0f} frames/s)",
+           result.stats.BriefReport(),
+           result.stageii_frames_per_s);
+  return result;
+}
+
+}  // namespace soma

@@ -1,0 +1,114 @@
+// `soma solve task.input=<labelled.c3d>`: fits the body to a labelled
+// capture (framework/solve: stage I shape + latent markers, stage II
+// per-frame pose) and writes, in the run directory,
+//   <take>_stageii.h5          per-frame body parameters (solve_output.h)
+//   <take>_solve_summary.csv   one row per frame (termination, costs,
+//                              iterations, time, markers, rms, skip reason)
+//   <take>_stagei.json         the fitted layout (MoSh++ "finetuned" layout:
+//                              nearest canonical vertex of each latent marker)
+//   <take>_stagei.csv          per-label vertex ids and distances
+// and reports frames, converged/skipped/failed counts, RMS and frames/s.
+#include "framework/config/decode.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+#include "framework/core/logging.h"
+#include "framework/io/c3d.h"
+#include "framework/solve/body_solver.h"
+#include "framework/solve/labelled_markers.h"
+#include "framework/solve/layout_fit.h"
+#include "framework/tasks/components.h"
+#include "framework/tasks/task.h"
+
+#include <fmt/format.h>
+
+namespace soma {
+namespace {
+
+struct SolveTaskOptions {
+  std::string input;
+  BodySolveOptions solver;
+};
+
+class SolveTask : public Task {
+ public:
+  explicit SolveTask(SolveTaskOptions options) : options_(std::move(options)) {}
+
+  void Run(const ConfigNode& cfg, RunContext& ctx) override {
+    BuildContext build(ctx.seed, ctx.output_dir.string());
+    const BodyModel body = BuildBody(cfg, build);
+    const MarkerLayout layout = BuildLayout(cfg, body, build);
+    const C3dData c3d = ReadC3d(options_.input);
+    const LabelledMarkers markers = MatchToLayout(c3d, layout);
+    SOMA_LOG(INFO,
+             "solve: {}: {} frames at {} Hz, {} of {} layout labels present",
+             options_.input,
+             markers.num_frames(),
+             markers.frame_rate,
+             layout.num_markers() - markers.absent_labels.size(),
+             layout.num_markers());
+    if (!markers.unmatched_labels.empty()) {
+      SOMA_LOG(WARNING,
+               "solve: {} capture labels not in the layout, ignored: {}",
+               markers.unmatched_labels.size(),
+               fmt::join(markers.unmatched_labels, " "));
+    }
+    if (!markers.absent_labels.empty()) {
+      SOMA_LOG(WARNING,
+               "solve: layout labels absent from the capture: {}",
+               fmt::join(markers.absent_labels, " "));
+    }
+    const BodySolveResult result =
+        SolveBody(body, layout, markers, options_.solver);
+
+    const std::string stem =
+        std::filesystem::path(options_.input).stem().string();
+    WriteSolveOutput(ctx.output_dir / (stem + "_stageii.h5"), result.output);
+    WriteFileAtomic(ctx.output_dir / (stem + "_solve_summary.csv"),
+                    SolveSummariesToCsv(result.output.summaries));
+    LayoutFitResult fitted;
+    fitted.layout = NearestVertexLayout(body,
+                                        layout,
+                                        result.stagei.betas,
+                                        result.output.markers_latent,
+                                        &fitted.normal_distances);
+    fitted.residuals_m.assign(layout.num_markers(), std::nan(""));
+    WriteMarkerLayout(fitted.layout, ctx.output_dir / (stem + "_stagei.json"));
+    WriteFileAtomic(ctx.output_dir / (stem + "_stagei.csv"),
+                    LayoutFitToCsv(fitted, layout));
+
+    const SequenceSolveStats& s = result.stats;
+    ctx.ReportMetric("frames", s.frames);
+    ctx.ReportMetric("converged", s.converged);
+    ctx.ReportMetric("no_convergence", s.no_convergence);
+    ctx.ReportMetric("failed", s.failed);
+    ctx.ReportMetric("skipped", s.skipped);
+    ctx.ReportMetric("unmatched_labels",
+                     static_cast<double>(markers.unmatched_labels.size()));
+    ctx.ReportMetric("absent_labels",
+                     static_cast<double>(markers.absent_labels.size()));
+    ctx.ReportMetric("stagei_rms_mm", 1e3 * result.stagei.summary.rms_m);
+    ctx.ReportMetric("stageii_mean_rms_mm", 1e3 * s.mean_rms_m);
+    ctx.ReportMetric("stageii_max_rms_mm", 1e3 * s.max_rms_m);
+    ctx.ReportMetric("stageii_frames_per_s", result.stageii_frames_per_s);
+  }
+
+ private:
+  SolveTaskOptions options_;
+};
+
+}  // namespace
+
+void RegisterSolveTask(Registry<Task>& registry) {
+  registry.Register("solve", [](const ConfigNode& node, BuildContext&) {
+    ConfigReader reader(node);
+    SolveTaskOptions options;
+    reader.Require("input", &options.input);
+    if (const ConfigNode* solver = reader.Child("solver")) {
+      options.solver = DecodeBodySolveOptions(*solver);
+    }
+    reader.Finish();
+    return std::make_unique<SolveTask>(std::move(options));
+  });
+}
+
+}  // namespace soma
