@@ -94,6 +94,10 @@ BodySolveOptions DecodeBodySolveOptions(const ConfigNode& node) {
     s.Read("surface_weight", &x.surface_weight);
     s.Read("optimize_betas", &x.optimize_betas);
     s.Read("optimize_toes", &x.optimize_toes);
+    s.Read("data_term", &x.data.data_term);
+    s.Read("data_loss", &x.data.data_loss);
+    s.Read("data_loss_scale", &x.data.data_loss_scale);
+    s.Read("noise_sigma_min", &x.data.noise_sigma_min);
     s.Finish();
   }
   if (const ConfigNode* c = r.Child("stageii")) {
@@ -108,6 +112,10 @@ BodySolveOptions DecodeBodySolveOptions(const ConfigNode& node) {
     s.Read("min_markers", &x.min_markers);
     s.Read("max_gap", &x.max_gap);
     s.Read("optimize_toes", &x.optimize_toes);
+    s.Read("data_term", &x.data.data_term);
+    s.Read("data_loss", &x.data.data_loss);
+    s.Read("data_loss_scale", &x.data.data_loss_scale);
+    s.Read("noise_sigma_min", &x.data.noise_sigma_min);
     s.Finish();
   }
   r.Finish();
@@ -156,6 +164,20 @@ BodySolveResult SolveBody(const BodyModel& body,
            "solve: stage I on {} frames: {}",
            picked.size(),
            result.stagei.summary.BriefReport());
+  if (result.stagei.noise_sigmas.size() > 0) {
+    const Eigen::VectorXd& sigma = result.stagei.noise_sigmas;
+    SOMA_LOG(
+        INFO,
+        "solve: stage I noise-aware sigma_m: median {:.1f} mm, max "
+        "{:.1f} mm",
+        1e3 *
+            [&] {
+              std::vector<double> v(sigma.data(), sigma.data() + sigma.size());
+              std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+              return v[v.size() / 2];
+            }(),
+        1e3 * sigma.maxCoeff());
+  }
   if (!result.stagei.summary.usable()) {
     throw Error(fmt::format("solve: stage I failed: {}",
                             result.stagei.summary.message));

@@ -46,6 +46,7 @@ void StageIOptions::Validate() const {
       !(surface_weight >= 0)) {
     throw bad("prior_weight", prior_weight, "regulariser weights >= 0");
   }
+  data.Validate("stagei");
   solver.Validate();
 }
 
@@ -147,8 +148,12 @@ StageIResult SolveStageI(const BodyModel& body,
   const std::vector<int> fixed =
       FixedFrameEntries(model->num_joints(), options.optimize_toes);
   const ceres::Solver::Options ceres_options = ToCeresOptions(options.solver);
+  const DataTermOptions& data = options.data;
+  std::vector<double> log_sigma(num_markers, std::log(data.data_loss_scale));
 
-  for (double anneal : options.annealing) {
+  for (size_t anneal_round = 0; anneal_round < options.annealing.size();
+       ++anneal_round) {
+    const double anneal = options.annealing[anneal_round];
     ceres::Problem problem;
     const double data_weight =
         options.data_weight / anneal * options.marker_norm / num_markers;
@@ -166,10 +171,31 @@ StageIResult SolveStageI(const BodyModel& body,
       // (a marker couples its frame, the betas and only its own offset).
       for (size_t i = 0; i < observed[f].size(); ++i) {
         const int m = observed[f][i];
-        problem.AddResidualBlock(
-            new ShapeMarkerDataCost(model, {m}, obs.col(i), data_weight),
-            nullptr,
-            std::vector<double*>{x, betas, result.offsets.col(m).data()});
+        auto* cost =
+            new ShapeMarkerDataCost(model, {m}, obs.col(i), data_weight);
+        if (data.noise_aware()) {
+          problem.AddResidualBlock(
+              new NoiseAwareMarkerCost(cost,
+                                       data_weight,
+                                       data.data_loss_scale,
+                                       data.noise_sigma_min),
+              nullptr,
+              std::vector<double*>{
+                  x, betas, result.offsets.col(m).data(), &log_sigma[m]});
+          problem.SetParameterLowerBound(
+              &log_sigma[m], 0, std::log(data.noise_sigma_min));
+          // sigma stays at data_loss_scale in the first round (from the
+          // rigid initialisation, large residuals are pose errors, not
+          // noise) unless it is the only one.
+          if (anneal_round == 0 && options.annealing.size() > 1) {
+            problem.SetParameterBlockConstant(&log_sigma[m]);
+          }
+        } else {
+          problem.AddResidualBlock(
+              cost,
+              MakeDataLoss(data, data_weight),
+              std::vector<double*>{x, betas, result.offsets.col(m).data()});
+        }
       }
       if (prior != nullptr && options.prior_weight > 0) {
         problem.AddResidualBlock(
@@ -211,6 +237,9 @@ StageIResult SolveStageI(const BodyModel& body,
     ordering->AddElementToGroup(betas, 1);
     for (int m = 0; m < num_markers; ++m) {
       ordering->AddElementToGroup(result.offsets.col(m).data(), 1);
+      if (data.noise_aware() && problem.HasParameterBlock(&log_sigma[m])) {
+        ordering->AddElementToGroup(&log_sigma[m], 1);
+      }
     }
     round_options.linear_solver_ordering = ordering;
     ceres::Solver::Summary ceres_summary;
@@ -228,6 +257,12 @@ StageIResult SolveStageI(const BodyModel& body,
     if (!round.usable()) break;
   }
 
+  if (data.noise_aware()) {
+    result.noise_sigmas =
+        Eigen::Map<const Eigen::VectorXd>(log_sigma.data(), num_markers)
+            .array()
+            .exp();
+  }
   model->SetShape(result.betas, result.offsets);
   double sq = 0.0;
   int count = 0;

@@ -16,6 +16,7 @@
 #pragma once
 
 #include "framework/body/body_model.h"
+#include "framework/solve/cost_functions.h"
 #include "framework/solve/marker_model.h"
 #include "framework/solve/pose_prior.h"
 #include "framework/solve/solve_summary.h"
@@ -45,6 +46,12 @@ struct StageIOptions {
   double surface_weight = 10000.0;
   bool optimize_betas = true;
   bool optimize_toes = false;
+  /// data_term / data_loss / data_loss_scale / noise_sigma_min (see
+  /// DataTermOptions). noise_aware in stage I: one sigma_m per marker shared
+  /// by all stage-I frames, optimised jointly with shape and poses in every
+  /// annealing round but the first (started at data_loss_scale, kept across
+  /// rounds).
+  DataTermOptions data;
   SolverOptions solver = {.linear_solver = "dense_schur"};
   void Validate() const;
 };
@@ -55,6 +62,9 @@ struct StageIResult {
   std::vector<int> frames;                    // input frame indices used
   std::vector<Eigen::VectorXd> frame_params;  // per used frame
   std::vector<SolveSummary> rounds;           // one per annealing round
+  /// Noise-aware data term: the per-marker sigma_m (metres, M); empty for
+  /// the standard term.
+  Eigen::VectorXd noise_sigmas;
   /// All rounds accumulated; rms_m over every observed marker of every
   /// frame; markers_used counts marker observations.
   SolveSummary summary;

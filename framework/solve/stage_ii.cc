@@ -81,6 +81,7 @@ void StageIIOptions::Validate() const {
     throw InvalidOption(
         "stageii.max_gap", std::to_string(max_gap), "max_gap >= 0");
   }
+  data.Validate("stageii");
   solver.Validate();
 }
 
@@ -148,6 +149,7 @@ StageIISolver::StageIISolver(const MarkerModel* model,
 
 void StageIISolver::Reset() {
   history_.clear();
+  noise_sigmas_.resize(0);
   gap_ = 0;
 }
 
@@ -174,7 +176,8 @@ SolveSummary StageIISolver::RunSolve(const std::vector<int>& markers,
                                      const Eigen::Matrix3Xd& observed,
                                      double prior_scale,
                                      bool velocity,
-                                     Eigen::VectorXd* params) const {
+                                     bool free_sigma,
+                                     Eigen::VectorXd* params) {
   const int num_markers = model_->num_markers();
   const int used = static_cast<int>(markers.size());
   const int missing = num_markers - used;
@@ -183,13 +186,49 @@ SolveSummary StageIISolver::RunSolve(const std::vector<int>& markers,
 
   ceres::Problem problem;
   double* x = params->data();
-  problem.AddResidualBlock(
-      new MarkerDataCost(model_,
-                         markers,
-                         obs,
-                         options_.data_weight * options_.marker_norm / used),
-      nullptr,
-      x);
+  const double weight = options_.data_weight * options_.marker_norm / used;
+  const DataTermOptions& data = options_.data;
+  std::vector<double> log_sigma;
+  if (data.noise_aware()) {
+    // One block per marker with its own log sigma (Noise-in Bias-out Eq. 6).
+    // Warm start from the previous frame's sigmas (data_loss_scale for a
+    // marker without one); held constant while the pose is still far off
+    // (all but the last of the first frame's prior scales).
+    log_sigma.assign(used, std::log(data.data_loss_scale));
+    if (noise_sigmas_.size() == num_markers) {
+      for (int i = 0; i < used; ++i) {
+        const double sigma = noise_sigmas_(markers[i]);
+        if (std::isfinite(sigma)) {
+          log_sigma[i] = std::log(std::max(sigma, data.noise_sigma_min));
+        }
+      }
+    }
+    for (int i = 0; i < used; ++i) {
+      problem.AddResidualBlock(
+          new NoiseAwareMarkerCost(
+              new MarkerDataCost(model_, {markers[i]}, obs.col(i), weight),
+              weight,
+              data.data_loss_scale,
+              data.noise_sigma_min),
+          nullptr,
+          x,
+          &log_sigma[i]);
+      problem.SetParameterLowerBound(
+          &log_sigma[i], 0, std::log(data.noise_sigma_min));
+      if (!free_sigma) problem.SetParameterBlockConstant(&log_sigma[i]);
+    }
+  } else if (data.data_loss != "squared") {
+    // The robust loss acts per marker: one residual block each.
+    for (int i = 0; i < used; ++i) {
+      problem.AddResidualBlock(
+          new MarkerDataCost(model_, {markers[i]}, obs.col(i), weight),
+          MakeDataLoss(data, weight),
+          x);
+    }
+  } else {
+    problem.AddResidualBlock(
+        new MarkerDataCost(model_, markers, obs, weight), nullptr, x);
+  }
   if (prior_ != nullptr && options_.prior_weight > 0) {
     const double c = 1.0 + options_.missing_prior_gain * missing /
                                static_cast<double>(num_markers);
@@ -223,6 +262,13 @@ SolveSummary StageIISolver::RunSolve(const std::vector<int>& markers,
   summary.iterations = static_cast<int>(ceres_summary.iterations.size()) - 1;
   summary.solves = 1;
   summary.time_s = ceres_summary.total_time_in_seconds;
+  if (data.noise_aware()) {
+    noise_sigmas_ = Eigen::VectorXd::Constant(
+        num_markers, std::numeric_limits<double>::quiet_NaN());
+    for (int i = 0; i < used; ++i) {
+      noise_sigmas_(markers[i]) = std::exp(log_sigma[i]);
+    }
+  }
   if (!params->allFinite()) {
     summary.termination = SolveTermination::kFailure;
     summary.message = "non-finite parameters after the solve";
@@ -264,13 +310,16 @@ SolveSummary StageIISolver::SolveFrame(int frame_index,
   SolveSummary total;
   if (history_.empty()) {
     *params = RigidInitFrame(*model_, markers, observed);
-    for (double scale : options_.first_frame_prior_scales) {
-      total.Accumulate(RunSolve(markers, observed, scale, false, params));
+    noise_sigmas_.resize(0);
+    const std::vector<double>& scales = options_.first_frame_prior_scales;
+    for (size_t k = 0; k < scales.size(); ++k) {
+      total.Accumulate(RunSolve(
+          markers, observed, scales[k], false, k + 1 == scales.size(), params));
       if (!total.usable()) break;
     }
   } else {
     *params = history_[0];
-    total.Accumulate(RunSolve(markers, observed, 1.0, true, params));
+    total.Accumulate(RunSolve(markers, observed, 1.0, true, true, params));
   }
   summary.termination = total.termination;
   summary.message = total.message;

@@ -13,6 +13,7 @@
 // markers are skipped (their SolveSummary says why, parameters are NaN).
 #pragma once
 
+#include "framework/solve/cost_functions.h"
 #include "framework/solve/marker_model.h"
 #include "framework/solve/pose_prior.h"
 #include "framework/solve/solve_summary.h"
@@ -47,6 +48,15 @@ struct StageIIOptions {
   int min_markers = 3;  // fewer observed markers: the frame is skipped
   int max_gap = 10;     // skipped frames after which we re-initialise
   bool optimize_toes = false;
+  /// data_term / data_loss / data_loss_scale / noise_sigma_min (see
+  /// DataTermOptions). noise_aware in stage II: sigma_m per observed marker,
+  /// optimised jointly with the pose in every frame's solve (the paper's
+  /// second stage optimises theta and sigma), warm-started from the previous
+  /// frame's sigmas (data_loss_scale at a (re)start, held fixed there until
+  /// the last of the first-frame prior scales). With one observation per
+  /// sigma this amounts to a log-type robust loss, ~ log max(|r_m|,
+  /// sigma_min).
+  DataTermOptions data;
   SolverOptions solver;
   void Validate() const;
 };
@@ -66,6 +76,10 @@ class StageIISolver {
                           const Eigen::Matrix3Xd& observed,
                           Eigen::VectorXd* params);
 
+  /// Noise-aware data term: sigma_m (metres, M) of the last solved frame,
+  /// NaN for unobserved markers; empty for the standard term.
+  const Eigen::VectorXd& noise_sigmas() const { return noise_sigmas_; }
+
   /// Forgets the warm-start history (the next frame is initialised rigidly).
   void Reset();
 
@@ -74,7 +88,8 @@ class StageIISolver {
                         const Eigen::Matrix3Xd& observed,
                         double prior_scale,
                         bool velocity,
-                        Eigen::VectorXd* params) const;
+                        bool free_sigma,
+                        Eigen::VectorXd* params);
 
   const MarkerModel* model_;
   const PosePrior* prior_;
@@ -82,6 +97,7 @@ class StageIISolver {
   std::vector<int> fixed_indices_;        // frame-vector entries held constant
   std::vector<Eigen::VectorXd> history_;  // last solved frames, newest first
   int gap_ = 0;  // skipped frames since the last solved one
+  Eigen::VectorXd noise_sigmas_;
 };
 
 /// Fixed entries of a frame vector: the toe rotations (joints 10, 11 of a
