@@ -113,6 +113,9 @@ class ReproduceTask : public Task {
     for (const std::string& o : ctx.overrides) {
       if (o == "task=reproduce") continue;
       if (o == "task.ablation=" + options_.ablation) continue;
+      // Where the log went and whether this call only rebuilt the table do
+      // not change the numbers: the command shown is the one that makes them.
+      if (o.rfind("hydra.", 0) == 0 || o.rfind("task.mode=", 0) == 0) continue;
       args.push_back(o);
     }
     context.command = fmt::format("soma reproduce {}{}{}",
