@@ -60,6 +60,12 @@ std::string RunDirArg(const fs::path& dir) {
   return "hydra.run.dir=" + dir.string();
 }
 
+/// A `soma` run finished successfully: `metrics.yaml` and no `error.txt`.
+bool RunDirDone(const fs::path& run_dir) {
+  return fs::exists(run_dir / "metrics.yaml") &&
+         !fs::exists(run_dir / "error.txt");
+}
+
 std::map<std::string, double> ReadMetrics(const fs::path& run_dir) {
   std::map<std::string, double> metrics;
   const fs::path path = run_dir / "metrics.yaml";
@@ -124,9 +130,12 @@ std::map<std::string, double> ModelMetrics(const PlannedModel& model) {
 
 }  // namespace
 
-bool PlannedCommand::Done() const {
-  return fs::exists(run_dir / "metrics.yaml") &&
-         !fs::exists(run_dir / "error.txt");
+bool PlannedCommand::Done() const { return RunDirDone(run_dir); }
+
+bool PlannedModel::Done() const {
+  return std::all_of(commands.begin(),
+                     commands.end(),
+                     [](const PlannedCommand& c) { return c.Done(); });
 }
 
 ReproductionPlan PlanReproduction(const AblationSpec& spec,
@@ -296,11 +305,7 @@ ReproductionRun RunReproduction(
     entry.overrides = m.train_overrides;
     entry.config_hash = m.hash + fmt::format("/{}", m.seed);
     entry.dir = m.dir.string();
-    const bool done = std::all_of(
-        m.commands.begin(), m.commands.end(), [](const PlannedCommand& c) {
-          return c.Done();
-        });
-    if (done) {
+    if (m.Done()) {
       entry.status = JobStatus::kDone;
       entry.error.clear();
       entry.metrics = ModelMetrics(m);
@@ -389,11 +394,7 @@ ReproductionRun SummarizeLedger(const ReproductionPlan& plan) {
   const Ledger ledger = Ledger::Load(plan.dir);
   for (size_t i = 0; i < plan.models.size(); ++i) {
     const PlannedModel& m = plan.models[i];
-    const bool done = std::all_of(
-        m.commands.begin(), m.commands.end(), [](const PlannedCommand& c) {
-          return c.Done();
-        });
-    run.models_done += done;
+    run.models_done += m.Done();
     if (const LedgerEntry* e = ledger.Find(static_cast<int>(i))) {
       run.compute_s += e->wall_time_s;
       if (e->status == JobStatus::kFailed) {
@@ -419,11 +420,7 @@ std::vector<CellResult> CollectResults(const AblationSpec& spec,
         for (const PlannedModel& m : plan.models) {
           if (m.variant != variant.name) continue;
           const fs::path& dir = m.eval_dirs.at(test.name);
-          const PlannedCommand* eval = nullptr;
-          for (const PlannedCommand& c : m.commands) {
-            if (c.run_dir == dir) eval = &c;
-          }
-          if (eval == nullptr || !eval->Done()) continue;
+          if (!RunDirDone(dir)) continue;
           const auto metrics = ReadMetrics(dir);
           const auto mean = metrics.find(metric + "_mean");
           const auto std = metrics.find(metric + "_std");

@@ -61,6 +61,8 @@ struct PlannedModel {
   std::filesystem::path dir;                 // the training run dir
   std::vector<PlannedCommand> commands;      // train, then label/eval pairs
   std::map<std::string, std::filesystem::path> eval_dirs;  // test -> eval run
+  /// Every command is done.
+  bool Done() const;
 };
 
 struct ReproductionPlan {

@@ -14,6 +14,14 @@
 namespace soma {
 namespace {
 
+/// The data-term keys shared by `stagei` and `stageii` (DataTermOptions).
+void ReadDataTermOptions(ConfigReader& reader, DataTermOptions* data) {
+  reader.Read("data_term", &data->data_term);
+  reader.Read("data_loss", &data->data_loss);
+  reader.Read("data_loss_scale", &data->data_loss_scale);
+  reader.Read("noise_sigma_min", &data->noise_sigma_min);
+}
+
 void DecodeSolver(const ConfigNode& node, SolverOptions* o) {
   ConfigReader r(node);
   r.Read("trust_region", &o->trust_region);
@@ -94,10 +102,7 @@ BodySolveOptions DecodeBodySolveOptions(const ConfigNode& node) {
     s.Read("surface_weight", &x.surface_weight);
     s.Read("optimize_betas", &x.optimize_betas);
     s.Read("optimize_toes", &x.optimize_toes);
-    s.Read("data_term", &x.data.data_term);
-    s.Read("data_loss", &x.data.data_loss);
-    s.Read("data_loss_scale", &x.data.data_loss_scale);
-    s.Read("noise_sigma_min", &x.data.noise_sigma_min);
+    ReadDataTermOptions(s, &x.data);
     s.Finish();
   }
   if (const ConfigNode* c = r.Child("stageii")) {
@@ -112,10 +117,7 @@ BodySolveOptions DecodeBodySolveOptions(const ConfigNode& node) {
     s.Read("min_markers", &x.min_markers);
     s.Read("max_gap", &x.max_gap);
     s.Read("optimize_toes", &x.optimize_toes);
-    s.Read("data_term", &x.data.data_term);
-    s.Read("data_loss", &x.data.data_loss);
-    s.Read("data_loss_scale", &x.data.data_loss_scale);
-    s.Read("noise_sigma_min", &x.data.noise_sigma_min);
+    ReadDataTermOptions(s, &x.data);
     s.Finish();
   }
   r.Finish();

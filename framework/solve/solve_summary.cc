@@ -32,6 +32,18 @@ SolveTermination FromCeres(ceres::TerminationType type) {
   }
 }
 
+SolveSummary FromCeresSummary(const ceres::Solver::Summary& summary) {
+  SolveSummary out;
+  out.termination = FromCeres(summary.termination_type);
+  out.message = summary.message;
+  out.initial_cost = summary.initial_cost;
+  out.final_cost = summary.final_cost;
+  out.iterations = static_cast<int>(summary.iterations.size()) - 1;
+  out.solves = 1;
+  out.time_s = summary.total_time_in_seconds;
+  return out;
+}
+
 std::string SolveSummary::BriefReport() const {
   if (termination == SolveTermination::kSkipped) {
     return fmt::format("frame {}: SKIPPED ({}): {}, {} markers",

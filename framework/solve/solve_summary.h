@@ -3,6 +3,7 @@
 // frame, why. Written per frame to summary CSVs and logged.
 #pragma once
 
+#include <ceres/solver.h>
 #include <ceres/types.h>
 
 #include <string>
@@ -20,6 +21,11 @@ enum class SolveTermination {
 std::string_view ToString(SolveTermination termination);
 /// Maps a Ceres termination type.
 SolveTermination FromCeres(ceres::TerminationType type);
+
+struct SolveSummary;
+/// One Ceres solve as a SolveSummary (termination, message, costs,
+/// iterations, time; solves = 1; the marker fields are left to the caller).
+SolveSummary FromCeresSummary(const ceres::Solver::Summary& summary);
 
 struct SolveSummary {
   int frame = -1;  // frame index in the input (-1: not a per-frame solve)

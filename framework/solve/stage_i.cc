@@ -244,14 +244,7 @@ StageIResult SolveStageI(const BodyModel& body,
     round_options.linear_solver_ordering = ordering;
     ceres::Solver::Summary ceres_summary;
     ceres::Solve(round_options, &problem, &ceres_summary);
-    SolveSummary round;
-    round.termination = FromCeres(ceres_summary.termination_type);
-    round.message = ceres_summary.message;
-    round.initial_cost = ceres_summary.initial_cost;
-    round.final_cost = ceres_summary.final_cost;
-    round.iterations = static_cast<int>(ceres_summary.iterations.size()) - 1;
-    round.solves = 1;
-    round.time_s = ceres_summary.total_time_in_seconds;
+    const SolveSummary round = FromCeresSummary(ceres_summary);
     result.rounds.push_back(round);
     result.summary.Accumulate(round);
     if (!round.usable()) break;

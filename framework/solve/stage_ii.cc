@@ -254,14 +254,7 @@ SolveSummary StageIISolver::RunSolve(const std::vector<int>& markers,
   ceres::Solver::Summary ceres_summary;
   ceres::Solve(ceres_options, &problem, &ceres_summary);
 
-  SolveSummary summary;
-  summary.termination = FromCeres(ceres_summary.termination_type);
-  summary.message = ceres_summary.message;
-  summary.initial_cost = ceres_summary.initial_cost;
-  summary.final_cost = ceres_summary.final_cost;
-  summary.iterations = static_cast<int>(ceres_summary.iterations.size()) - 1;
-  summary.solves = 1;
-  summary.time_s = ceres_summary.total_time_in_seconds;
+  SolveSummary summary = FromCeresSummary(ceres_summary);
   if (data.noise_aware()) {
     noise_sigmas_ = Eigen::VectorXd::Constant(
         num_markers, std::numeric_limits<double>::quiet_NaN());
