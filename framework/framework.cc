@@ -5,6 +5,7 @@
 #include "framework/core/random.h"
 #include "framework/model/register.h"
 #include "framework/motion/motion_source.h"
+#include "framework/solve/pose_prior.h"
 #include "framework/registry/registry.h"
 #include "framework/synth/register.h"
 #include "framework/tasks/task.h"
@@ -47,6 +48,7 @@ void RegisterBuiltins() {
   DefaultResolvers().Register("soma.sweep_id", SweepIdResolver);
   RegisterBodySources();
   RegisterMotionSources();
+  RegisterPosePriors();
   RegisterSynthComponents();
   RegisterModelComponents();
   RegisterTrainComponents();

@@ -23,9 +23,13 @@ int main(int argc, char** argv) {
   // `soma <command> ...` selects the task config group option <command>.
   if (!args.empty() && soma::GetRegistry<soma::Task>().Has(args.front())) {
     // A command's main input may be given positionally:
-    // `soma reproduce table5`, `soma solve take.c3d`, `soma label take.c3d`.
+    // `soma reproduce table5`, `soma solve take.c3d`, `soma label take.c3d`,
+    // `soma fit_layout take.c3d`.
     static const std::map<std::string, std::string> kPositional = {
-        {"reproduce", "ablation"}, {"solve", "input"}, {"label", "input"}};
+        {"reproduce", "ablation"},
+        {"solve", "input"},
+        {"label", "input"},
+        {"fit_layout", "input"}};
     const auto positional = kPositional.find(args.front());
     if (positional != kPositional.end() && args.size() > 1 &&
         args[1].find('=') == std::string::npos && args[1].front() != '-') {

@@ -182,4 +182,131 @@ void ReadNumberAttribute(hid_t object,
   CheckStatus(H5Aread(attr.get(), mem_type, value), cannot_read);
 }
 
+void WriteDataset(hid_t object,
+                  const char* name,
+                  const std::vector<hsize_t>& dims,
+                  hid_t mem_type,
+                  hid_t file_type,
+                  const void* values,
+                  const std::string& file) {
+  const std::string what = fmt::format("{}: cannot write '{}'", file, name);
+  hsize_t total = 1;
+  for (hsize_t d : dims) total *= d;
+  std::lock_guard lock(Hdf5Mutex());
+  const Hid space = Check(
+      H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr),
+      H5Sclose,
+      what);
+  const Hid dataset = Check(H5Dcreate2(object,
+                                       name,
+                                       file_type,
+                                       space.get(),
+                                       H5P_DEFAULT,
+                                       H5P_DEFAULT,
+                                       H5P_DEFAULT),
+                            H5Dclose,
+                            what);
+  if (total > 0) {
+    CheckStatus(
+        H5Dwrite(
+            dataset.get(), mem_type, H5S_ALL, H5S_ALL, H5P_DEFAULT, values),
+        what);
+  }
+}
+
+std::vector<hsize_t> DatasetShape(hid_t object,
+                                  const char* name,
+                                  const std::string& bad) {
+  std::lock_guard lock(Hdf5Mutex());
+  if (H5Lexists(object, name, H5P_DEFAULT) <= 0) {
+    throw IoError(bad + fmt::format("missing dataset '{}'", name));
+  }
+  const std::string cannot = bad + fmt::format("cannot open '{}'", name);
+  const Hid dataset =
+      Check(H5Dopen2(object, name, H5P_DEFAULT), H5Dclose, cannot);
+  const Hid space = Check(H5Dget_space(dataset.get()), H5Sclose, cannot);
+  const int rank = H5Sget_simple_extent_ndims(space.get());
+  if (rank < 0) throw IoError(cannot);
+  std::vector<hsize_t> dims(rank);
+  H5Sget_simple_extent_dims(space.get(), dims.data(), nullptr);
+  return dims;
+}
+
+namespace {
+
+std::string ShapeText(const std::vector<hsize_t>& dims) {
+  if (dims.empty()) return "a scalar";
+  std::string text;
+  for (size_t i = 0; i < dims.size(); ++i) {
+    text += (i == 0 ? "" : " x ") +
+            (dims[i] == 0 ? std::string("*") : std::to_string(dims[i]));
+  }
+  return text;
+}
+
+}  // namespace
+
+template <typename T>
+std::vector<T> ReadDataset(hid_t object,
+                           const char* name,
+                           const std::vector<hsize_t>& expected_dims,
+                           const std::string& bad,
+                           std::vector<hsize_t>* dims) {
+  std::lock_guard lock(Hdf5Mutex());
+  const std::vector<hsize_t> shape = DatasetShape(object, name, bad);
+  bool matches = expected_dims.empty() || expected_dims.size() == shape.size();
+  for (size_t i = 0; matches && i < expected_dims.size(); ++i) {
+    matches = expected_dims[i] == 0 || expected_dims[i] == shape[i];
+  }
+  if (!matches) {
+    throw IoError(bad + fmt::format("dataset '{}' is {}, expected {}",
+                                    name,
+                                    ShapeText(shape),
+                                    ShapeText(expected_dims)));
+  }
+  const std::string cannot = bad + fmt::format("cannot read '{}'", name);
+  const Hid dataset =
+      Check(H5Dopen2(object, name, H5P_DEFAULT), H5Dclose, cannot);
+  const Hid type = Check(H5Dget_type(dataset.get()), H5Tclose, cannot);
+  const H5T_class_t type_class = H5Tget_class(type.get());
+  if (type_class != H5T_INTEGER && type_class != H5T_FLOAT) {
+    throw IoError(bad + fmt::format("dataset '{}' is not numeric", name));
+  }
+  hsize_t total = 1;
+  for (hsize_t d : shape) total *= d;
+  std::vector<T> values(total);
+  if (total > 0) {
+    CheckStatus(H5Dread(dataset.get(),
+                        NumberType<T>::Memory(),
+                        H5S_ALL,
+                        H5S_ALL,
+                        H5P_DEFAULT,
+                        values.data()),
+                cannot + " (truncated?)");
+  }
+  if (dims != nullptr) *dims = shape;
+  return values;
+}
+
+template std::vector<int32_t> ReadDataset<int32_t>(hid_t,
+                                                   const char*,
+                                                   const std::vector<hsize_t>&,
+                                                   const std::string&,
+                                                   std::vector<hsize_t>*);
+template std::vector<int64_t> ReadDataset<int64_t>(hid_t,
+                                                   const char*,
+                                                   const std::vector<hsize_t>&,
+                                                   const std::string&,
+                                                   std::vector<hsize_t>*);
+template std::vector<float> ReadDataset<float>(hid_t,
+                                               const char*,
+                                               const std::vector<hsize_t>&,
+                                               const std::string&,
+                                               std::vector<hsize_t>*);
+template std::vector<double> ReadDataset<double>(hid_t,
+                                                 const char*,
+                                                 const std::vector<hsize_t>&,
+                                                 const std::string&,
+                                                 std::vector<hsize_t>*);
+
 }  // namespace soma::hdf5

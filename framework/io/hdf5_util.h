@@ -191,4 +191,48 @@ T ReadNumberAttribute(hid_t object, const char* name, const std::string& bad) {
   return value;
 }
 
+// ---- Numeric datasets. Errors name the file (`file` / `bad`) and dataset.
+
+/// Creates dataset `name` of `object` with shape `dims` (row-major) and
+/// writes `values` (prod(dims) elements of `mem_type`) stored as `file_type`.
+void WriteDataset(hid_t object,
+                  const char* name,
+                  const std::vector<hsize_t>& dims,
+                  hid_t mem_type,
+                  hid_t file_type,
+                  const void* values,
+                  const std::string& file);
+
+template <typename T>
+void WriteDataset(hid_t object,
+                  const char* name,
+                  const std::vector<hsize_t>& dims,
+                  const std::vector<T>& values,
+                  const std::string& file) {
+  WriteDataset(object,
+               name,
+               dims,
+               NumberType<T>::Memory(),
+               NumberType<T>::File(),
+               values.data(),
+               file);
+}
+
+/// The shape of dataset `name` of `object`; IoError `bad` + "missing
+/// dataset '<name>'" if absent.
+std::vector<hsize_t> DatasetShape(hid_t object,
+                                  const char* name,
+                                  const std::string& bad);
+
+/// Reads numeric dataset `name` converted to T (HDF5 converts the number
+/// type). If `expected_dims` is not empty, its non-zero entries must match
+/// the dataset's shape (0 = any size) or IoError names both shapes.
+/// `dims` (optional) gets the shape read.
+template <typename T>
+std::vector<T> ReadDataset(hid_t object,
+                           const char* name,
+                           const std::vector<hsize_t>& expected_dims,
+                           const std::string& bad,
+                           std::vector<hsize_t>* dims = nullptr);
+
 }  // namespace soma::hdf5

@@ -37,29 +37,20 @@ void DecodeSolver(const ConfigNode& node, SolverOptions* o) {
 }  // namespace
 
 void BodySolveOptions::Validate() const {
-  if (pose_prior != "procedural" && pose_prior != "zero_mean" &&
-      pose_prior != "none") {
-    throw ConfigError(fmt::format(
-        "Invalid configuration. solver.pose_prior = {}. Violated constraint: "
-        "procedural | zero_mean | none (body_solver.cc)",
-        pose_prior));
-  }
   if (threads < 1 || threads > 256) {
     throw ConfigError(fmt::format(
         "Invalid configuration. solver.threads = {}. Violated constraint: "
         "1 <= threads <= 256 (body_solver.cc)",
         threads));
   }
-  if (!(prior_stddev > 0) || start < 0 || stride < 1 ||
-      (end >= 0 && end <= start)) {
+  if (start < 0 || stride < 1 || (end >= 0 && end <= start)) {
     throw ConfigError(fmt::format(
-        "Invalid configuration. solver.start/end/stride/prior_stddev = "
-        "{}/{}/{}/{}. Violated constraint: start >= 0, end = -1 or end > "
-        "start, stride >= 1, prior_stddev > 0 (body_solver.cc)",
+        "Invalid configuration. solver.start/end/stride = {}/{}/{}. Violated "
+        "constraint: start >= 0, end = -1 or end > start, stride >= 1 "
+        "(body_solver.cc)",
         start,
         end,
-        stride,
-        prior_stddev));
+        stride));
   }
   stagei.Validate();
   stageii.Validate();
@@ -68,8 +59,6 @@ void BodySolveOptions::Validate() const {
 BodySolveOptions DecodeBodySolveOptions(const ConfigNode& node) {
   BodySolveOptions o;
   ConfigReader r(node);
-  r.Read("pose_prior", &o.pose_prior);
-  r.Read("prior_stddev", &o.prior_stddev);
   r.Read("start", &o.start);
   r.Read("end", &o.end);
   r.Read("stride", &o.stride);
@@ -125,27 +114,16 @@ BodySolveOptions DecodeBodySolveOptions(const ConfigNode& node) {
   return o;
 }
 
-std::unique_ptr<PosePrior> MakePosePrior(const BodyModel& body,
-                                         const BodySolveOptions& options) {
-  if (options.pose_prior == "none") return nullptr;
-  if (options.pose_prior == "zero_mean") {
-    return std::make_unique<GaussianPosePrior>(
-        GaussianPosePrior::ZeroMean(body.num_joints(), options.prior_stddev));
-  }
-  return std::make_unique<GaussianPosePrior>(
-      ProceduralPosePrior(body, options.procedural_prior));
-}
-
 BodySolveResult SolveBody(const BodyModel& body,
                           const MarkerLayout& layout,
                           const LabelledMarkers& markers,
+                          const PosePrior* prior,
                           const BodySolveOptions& options) {
   options.Validate();
   if (static_cast<int>(markers.labels.size()) != layout.num_markers()) {
     throw ShapeError("SolveBody: markers were matched to another layout");
   }
   if (markers.num_frames() == 0) throw Error("SolveBody: no frames");
-  const std::unique_ptr<PosePrior> prior = MakePosePrior(body, options);
   std::vector<int> vids;
   std::vector<double> distances;
   for (const MarkerLayout::Marker& m : layout.markers) {
@@ -160,7 +138,7 @@ BodySolveResult SolveBody(const BodyModel& body,
   std::vector<Eigen::Matrix3Xd> stagei_frames;
   for (int f : picked) stagei_frames.push_back(markers.frames[f]);
   result.stagei = SolveStageI(
-      body, &model, distances, stagei_frames, prior.get(), options.stagei);
+      body, &model, distances, stagei_frames, prior, options.stagei);
   result.stagei.frames = picked;
   SOMA_LOG(INFO,
            "solve: stage I on {} frames: {}",
@@ -208,7 +186,7 @@ BodySolveResult SolveBody(const BodyModel& body,
   const Timer timer;
   // Contiguous chunks, one StageIISolver (warm-start history) each.
   const auto solve_chunk = [&](int begin, int stop) {
-    StageIISolver solver(&model, prior.get(), options.stageii);
+    StageIISolver solver(&model, prior, options.stageii);
     for (int i = begin; i < stop; ++i) {
       const int t = frames[i];
       Eigen::VectorXd params;

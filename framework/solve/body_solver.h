@@ -18,11 +18,6 @@
 namespace soma {
 
 struct BodySolveOptions {
-  /// "procedural" (Gaussian fitted to the procedural motion library),
-  /// "zero_mean" (isotropic, prior_stddev) or "none".
-  std::string pose_prior = "procedural";
-  double prior_stddev = 0.6;  // radians, zero_mean only
-  ProceduralPosePriorOptions procedural_prior;
   StageIOptions stagei;
   StageIIOptions stageii;
   int start = 0;   // first frame of stage II
@@ -35,14 +30,11 @@ struct BodySolveOptions {
   void Validate() const;
 };
 
-/// Decodes `node` (the `solver` node of configs/task/solve.yaml: keys
-/// pose_prior, prior_stddev, stagei {...}, stageii {...}, ceres {...}
-/// shared by both stages, start, end, stride). Unknown keys are errors.
+/// Decodes `node` (the `solver` config group, configs/solver/: keys
+/// stagei {...}, stageii {...}, ceres {...} shared by both stages, start,
+/// end, stride, threads). Unknown keys are errors. The pose prior is its
+/// own component (`pose_prior` group, PosePriorSource).
 BodySolveOptions DecodeBodySolveOptions(const ConfigNode& node);
-
-/// The pose prior `options.pose_prior` for `body` (null for "none").
-std::unique_ptr<PosePrior> MakePosePrior(const BodyModel& body,
-                                         const BodySolveOptions& options);
 
 struct BodySolveResult {
   StageIResult stagei;
@@ -51,10 +43,12 @@ struct BodySolveResult {
   double stageii_frames_per_s = 0.0;
 };
 
-/// Runs stage I and stage II on `markers` (matched to `layout`).
+/// Runs stage I and stage II on `markers` (matched to `layout`) with the
+/// pose prior `prior` (may be null: no prior).
 BodySolveResult SolveBody(const BodyModel& body,
                           const MarkerLayout& layout,
                           const LabelledMarkers& markers,
+                          const PosePrior* prior,
                           const BodySolveOptions& options);
 
 }  // namespace soma

@@ -43,7 +43,8 @@ LayoutFitResult FitLayoutToFrame(const BodyModel& body,
                                  const LabelledMarkers& markers,
                                  int frame,
                                  const PosePrior* prior,
-                                 const StageIOptions& options) {
+                                 const StageIOptions& options,
+                                 const StageIIOptions& repose) {
   if (frame < 0 || frame >= markers.num_frames()) {
     throw ShapeError(fmt::format(
         "FitLayoutToFrame: frame {} of {}", frame, markers.num_frames()));
@@ -86,7 +87,39 @@ LayoutFitResult FitLayoutToFrame(const BodyModel& body,
                                       result.fit.betas,
                                       model.latent_markers(),
                                       &result.normal_distances);
+
+  // The layout as written: vertex + normal * per-type distance, re-posed.
+  std::vector<int> layout_vids;
+  std::vector<double> layout_distances;
+  for (const MarkerLayout::Marker& m : result.layout.markers) {
+    layout_vids.push_back(m.vertex_ids.at(0));
+    layout_distances.push_back(m.distance_from_skin);
+  }
+  MarkerModel layout_model(body, layout_vids);
+  layout_model.SetShape(
+      result.fit.betas,
+      NormalOffsets(body, result.fit.betas, layout_vids, layout_distances));
+  StageIISolver pose_only(&layout_model, prior, repose);
+  Eigen::VectorXd params;
+  const SolveSummary summary = pose_only.SolveFrame(frame, obs, &params);
+  result.layout_rms_m = summary.usable()
+                            ? summary.rms_m
+                            : std::numeric_limits<double>::quiet_NaN();
   return result;
+}
+
+int MostCompleteFrame(const LabelledMarkers& markers) {
+  int best = 0;
+  int best_count = -1;
+  for (int t = 0; t < markers.num_frames(); ++t) {
+    const int count =
+        static_cast<int>(ObservedMarkers(markers.frames[t]).size());
+    if (count > best_count) {
+      best = t;
+      best_count = count;
+    }
+  }
+  return best;
 }
 
 std::string LayoutFitToCsv(const LayoutFitResult& fit,

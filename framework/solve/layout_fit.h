@@ -9,6 +9,7 @@
 #include "framework/solve/labelled_markers.h"
 #include "framework/solve/pose_prior.h"
 #include "framework/solve/stage_i.h"
+#include "framework/solve/stage_ii.h"
 
 #include <string>
 #include <vector>
@@ -27,6 +28,11 @@ struct LayoutFitResult {
   std::vector<double> residuals_m;
   double rms_m = 0.0;  // RMS of residuals_m over observed markers
   int markers_used = 0;
+  /// The written layout as it will be used: its vertices offset along their
+  /// normals by the layout's per-type distances on the fitted shape, posed
+  /// to the frame anew (stage II, shape fixed). RMS over observed markers:
+  /// what the layout itself explains, without stage I's free offsets.
+  double layout_rms_m = 0.0;
 };
 
 /// `initial` with each label's vertex ids replaced by the vertex of the
@@ -40,14 +46,20 @@ MarkerLayout NearestVertexLayout(const BodyModel& body,
                                  std::vector<double>* normal_distances);
 
 /// Fits `body` to frame `frame` of `markers` (matched to `initial`, e.g. by
-/// MatchToLayout). `prior` may be null. Throws Error if the frame has fewer
-/// than 3 markers.
+/// MatchToLayout). `prior` may be null; `repose` solves the pose of the
+/// derived layout (layout_rms_m). Throws Error if the frame has fewer than
+/// 3 markers.
 LayoutFitResult FitLayoutToFrame(const BodyModel& body,
                                  const MarkerLayout& initial,
                                  const LabelledMarkers& markers,
                                  int frame,
                                  const PosePrior* prior,
-                                 const StageIOptions& options);
+                                 const StageIOptions& options,
+                                 const StageIIOptions& repose = {});
+
+/// The frame of `markers` with the most observed markers (the first of
+/// equals): a default frame for FitLayoutToFrame.
+int MostCompleteFrame(const LabelledMarkers& markers);
 
 /// CSV of a fit: label,vertex_id,initial_vertex_id,normal_distance_mm,
 /// residual_mm.

@@ -1,6 +1,7 @@
 // `soma solve task.input=<labelled.c3d>`: fits the body to a labelled
 // capture (framework/solve: stage I shape + latent markers, stage II
-// per-frame pose) and writes, in the run directory,
+// per-frame pose; options from the `solver` group, the prior from the
+// `pose_prior` group) and writes, in the run directory,
 //   <take>_stageii.h5          per-frame body parameters (solve_output.h)
 //   <take>_solve_summary.csv   one row per frame (termination, costs,
 //                              iterations, time, markers, rms, skip reason)
@@ -13,6 +14,7 @@
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
 #include "framework/io/c3d.h"
+#include "framework/registry/registry.h"
 #include "framework/solve/body_solver.h"
 #include "framework/solve/labelled_markers.h"
 #include "framework/solve/layout_fit.h"
@@ -26,7 +28,6 @@ namespace {
 
 struct SolveTaskOptions {
   std::string input;
-  BodySolveOptions solver;
 };
 
 class SolveTask : public Task {
@@ -39,6 +40,9 @@ class SolveTask : public Task {
     const MarkerLayout layout = BuildLayout(cfg, body, build);
     const C3dData c3d = ReadC3d(options_.input);
     const LabelledMarkers markers = MatchToLayout(c3d, layout);
+    const BodySolveOptions solver = DecodeBodySolveOptions(cfg.at("solver"));
+    const std::unique_ptr<PosePrior> prior =
+        Instantiate<PosePriorSource>(cfg.at("pose_prior"), build)->Make(body);
     SOMA_LOG(INFO,
              "solve: {}: {} frames at {} Hz, {} of {} layout labels present",
              options_.input,
@@ -58,7 +62,7 @@ class SolveTask : public Task {
                fmt::join(markers.absent_labels, " "));
     }
     const BodySolveResult result =
-        SolveBody(body, layout, markers, options_.solver);
+        SolveBody(body, layout, markers, prior.get(), solver);
 
     const std::string stem =
         std::filesystem::path(options_.input).stem().string();
@@ -103,9 +107,6 @@ void RegisterSolveTask(Registry<Task>& registry) {
     ConfigReader reader(node);
     SolveTaskOptions options;
     reader.Require("input", &options.input);
-    if (const ConfigNode* solver = reader.Child("solver")) {
-      options.solver = DecodeBodySolveOptions(*solver);
-    }
     reader.Finish();
     return std::make_unique<SolveTask>(std::move(options));
   });

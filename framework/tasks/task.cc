@@ -10,6 +10,8 @@ void RegisterCorruptTask(Registry<Task>& registry);
 void RegisterCoverageTask(Registry<Task>& registry);
 void RegisterDemoTask(Registry<Task>& registry);
 void RegisterEvalTask(Registry<Task>& registry);
+void RegisterFitLayoutTask(Registry<Task>& registry);
+void RegisterFitPriorTask(Registry<Task>& registry);
 void RegisterInspectTask(Registry<Task>& registry);
 void RegisterLabelTask(Registry<Task>& registry);
 void RegisterRealismTask(Registry<Task>& registry);
@@ -24,6 +26,8 @@ void RegisterTasks() {
   RegisterCoverageTask(registry);
   RegisterDemoTask(registry);
   RegisterEvalTask(registry);
+  RegisterFitLayoutTask(registry);
+  RegisterFitPriorTask(registry);
   RegisterInspectTask(registry);
   RegisterLabelTask(registry);
   RegisterRealismTask(registry);

@@ -52,9 +52,11 @@ TEST(BodySolver, SolvesASyntheticCaptureAndWritesTheOutput) {
   const MarkerLayout layout = MakeBuiltinLayout(body, "cmu41");
   const LabelledMarkers capture = SyntheticCapture(layout, 30);
   BodySolveOptions options;
-  options.pose_prior = "zero_mean";
   options.stagei.num_frames = 4;
-  const BodySolveResult result = SolveBody(body, layout, capture, options);
+  const GaussianPosePrior prior =
+      GaussianPosePrior::ZeroMean(body.num_joints(), 0.6);
+  const BodySolveResult result =
+      SolveBody(body, layout, capture, &prior, options);
   EXPECT_EQ(result.stats.frames, 30);
   EXPECT_EQ(result.stats.skipped, 1);
   EXPECT_EQ(result.output.summaries[7].skipped_reason, "too_few_markers");
@@ -91,7 +93,8 @@ TEST(BodySolver, SolvesASyntheticCaptureAndWritesTheOutput) {
 
   // Two stage II threads: two chunks, same frames and quality.
   options.threads = 2;
-  const BodySolveResult parallel = SolveBody(body, layout, capture, options);
+  const BodySolveResult parallel =
+      SolveBody(body, layout, capture, &prior, options);
   EXPECT_EQ(parallel.stats.frames, 30);
   EXPECT_EQ(parallel.stats.skipped, 1);
   EXPECT_LT(parallel.stats.max_rms_m, 3e-3);
@@ -102,11 +105,10 @@ TEST(BodySolver, SolvesASyntheticCaptureAndWritesTheOutput) {
 
 TEST(BodySolver, DecodesOptionsAndRejectsBadOnes) {
   const ConfigNode node = ParseYaml(
-      "pose_prior: zero_mean\nstride: 2\nceres: {max_iterations: 20}\n"
+      "stride: 2\nceres: {max_iterations: 20}\n"
       "stagei: {num_frames: 5}\nstageii: {velocity_weight: 1.0}\n",
       "test");
   const BodySolveOptions o = DecodeBodySolveOptions(node);
-  EXPECT_EQ(o.pose_prior, "zero_mean");
   EXPECT_EQ(o.stride, 2);
   EXPECT_EQ(o.stageii.solver.max_iterations, 20);
   EXPECT_EQ(o.stagei.solver.max_iterations, 20);
@@ -114,6 +116,7 @@ TEST(BodySolver, DecodesOptionsAndRejectsBadOnes) {
   EXPECT_EQ(o.stageii.velocity_weight, 1.0);
   EXPECT_THROW(DecodeBodySolveOptions(ParseYaml("nope: 1\n", "test")),
                ConfigError);
+  // The pose prior is its own component (configs/pose_prior/), not a key.
   EXPECT_THROW(DecodeBodySolveOptions(ParseYaml("pose_prior: gmm\n", "test")),
                ConfigError);
   EXPECT_THROW(
@@ -127,7 +130,7 @@ TEST(BodySolver, LayoutMismatchIsAnError) {
   LabelledMarkers capture;
   capture.labels = {"A", "B"};
   capture.frames = {Eigen::Matrix3Xd::Zero(3, 2)};
-  EXPECT_THROW(SolveBody(body, layout, capture, BodySolveOptions{}),
+  EXPECT_THROW(SolveBody(body, layout, capture, nullptr, BodySolveOptions{}),
                ShapeError);
 }
 

@@ -30,12 +30,8 @@ Fixture MakeFixture() {
   std::vector<int> vids;
   for (const auto& m : layout.markers) vids.push_back(m.vertex_ids[0]);
   Rng rng(9);
-  std::vector<Eigen::VectorXd> samples;
-  for (int i = 0; i < 200; ++i) {
-    Eigen::VectorXd s(3 * (body.num_joints() - 1));
-    for (int k = 0; k < s.size(); ++k) s(k) = 0.3 * rng.Normal();
-    samples.push_back(s);
-  }
+  Eigen::MatrixXd samples(3 * (body.num_joints() - 1), 200);
+  for (int i = 0; i < samples.size(); ++i) samples(i) = 0.3 * rng.Normal();
   Fixture f{MarkerModel(body, vids),
             GaussianPosePrior::Fit(samples, 0.2, 0.05),
             Eigen::VectorXd(FrameParamSize(body.num_joints())),

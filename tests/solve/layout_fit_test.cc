@@ -52,6 +52,12 @@ TEST(LayoutFit, FitsARealCmuFrameAndWritesTheLayout) {
       markers.absent_labels.size());
   EXPECT_EQ(fit.markers_used, 41);
   EXPECT_LT(fit.rms_m, kCmuFrameRmsBound);
+  // The written layout (vertex + per-type distance), re-posed on the frame.
+  std::printf("  written layout re-posed: RMS %.2f mm\n",
+              1e3 * fit.layout_rms_m);
+  EXPECT_LT(fit.layout_rms_m, kCmuFrameRmsBound);
+  EXPECT_GT(fit.layout_rms_m, fit.rms_m);  // no free offsets any more
+  EXPECT_EQ(MostCompleteFrame(markers), frame);
   // For comparison: the built-in layout as it is (mean shape, markers at
   // vertex + normal * distance), only the pose fitted (stage II).
   std::vector<int> vids;
