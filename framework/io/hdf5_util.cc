@@ -188,10 +188,19 @@ void WriteDataset(hid_t object,
                   hid_t mem_type,
                   hid_t file_type,
                   const void* values,
+                  size_t count,
                   const std::string& file) {
   const std::string what = fmt::format("{}: cannot write '{}'", file, name);
   hsize_t total = 1;
   for (hsize_t d : dims) total *= d;
+  if (total != count) {
+    throw InternalError(
+        fmt::format("{}: dataset '{}' has {} values for {} elements",
+                    file,
+                    name,
+                    count,
+                    total));
+  }
   std::lock_guard lock(Hdf5Mutex());
   const Hid space = Check(
       H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr),

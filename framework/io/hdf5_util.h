@@ -194,13 +194,15 @@ T ReadNumberAttribute(hid_t object, const char* name, const std::string& bad) {
 // ---- Numeric datasets. Errors name the file (`file` / `bad`) and dataset.
 
 /// Creates dataset `name` of `object` with shape `dims` (row-major) and
-/// writes `values` (prod(dims) elements of `mem_type`) stored as `file_type`.
+/// writes `values` (`count` = prod(dims) elements of `mem_type`, else
+/// InternalError) stored as `file_type`.
 void WriteDataset(hid_t object,
                   const char* name,
                   const std::vector<hsize_t>& dims,
                   hid_t mem_type,
                   hid_t file_type,
                   const void* values,
+                  size_t count,
                   const std::string& file);
 
 template <typename T>
@@ -215,6 +217,7 @@ void WriteDataset(hid_t object,
                NumberType<T>::Memory(),
                NumberType<T>::File(),
                values.data(),
+               values.size(),
                file);
 }
 

@@ -6,45 +6,21 @@
 
 #include <fmt/format.h>
 
+#include <cmath>
+#include <system_error>
+
 namespace soma {
 namespace {
 
 using hdf5::Check;
-using hdf5::CheckStatus;
 using hdf5::Hid;
 
-template <typename T>
-void WriteArray(hid_t file,
-                const char* name,
-                const std::vector<hsize_t>& dims,
-                const std::vector<T>& values,
-                const std::string& source) {
-  const std::string what = fmt::format("{}: cannot write '{}'", source, name);
-  hsize_t total = 1;
-  for (hsize_t d : dims) total *= d;
-  SOMA_CHECK_EQ(total, values.size()) << name;
-  Hid space = Check(
-      H5Screate_simple(static_cast<int>(dims.size()), dims.data(), nullptr),
-      H5Sclose,
-      what);
-  Hid dataset = Check(H5Dcreate2(file,
-                                 name,
-                                 hdf5::NumberType<T>::File(),
-                                 space.get(),
-                                 H5P_DEFAULT,
-                                 H5P_DEFAULT,
-                                 H5P_DEFAULT),
-                      H5Dclose,
-                      what);
-  if (total > 0) {
-    CheckStatus(H5Dwrite(dataset.get(),
-                         hdf5::NumberType<T>::Memory(),
-                         H5S_ALL,
-                         H5S_ALL,
-                         H5P_DEFAULT,
-                         values.data()),
-                what);
-  }
+constexpr char kFormat[] = "soma-solve";
+
+/// Columns of a row-major N x 3 array as a 3 x N matrix.
+Eigen::Matrix3Xd ToMatrix3X(const double* data, hsize_t n) {
+  return Eigen::Map<const Eigen::Matrix3Xd>(
+      data, 3, static_cast<Eigen::Index>(n));
 }
 
 }  // namespace
@@ -98,24 +74,25 @@ void WriteSolveOutput(const std::filesystem::path& path,
               H5Fclose,
               fmt::format("{}: cannot create the file", source));
     const hid_t id = file.get();
-    WriteArray(id, "trans", {f, 3}, trans, source);
-    WriteArray(id, "poses", {f, 3 * j}, poses, source);
-    WriteArray(id,
-               "betas",
-               {static_cast<hsize_t>(output.betas.size())},
-               std::vector<double>(output.betas.data(),
-                                   output.betas.data() + output.betas.size()),
-               source);
-    WriteArray(
+    hdf5::WriteDataset(id, "trans", {f, 3}, trans, source);
+    hdf5::WriteDataset(id, "poses", {f, 3 * j}, poses, source);
+    hdf5::WriteDataset(
+        id,
+        "betas",
+        {static_cast<hsize_t>(output.betas.size())},
+        std::vector<double>(output.betas.data(),
+                            output.betas.data() + output.betas.size()),
+        source);
+    hdf5::WriteDataset(
         id, "markers_latent", {m, 3}, flat(output.markers_latent), source);
-    WriteArray(
+    hdf5::WriteDataset(
         id, "marker_offsets", {m, 3}, flat(output.marker_offsets), source);
-    WriteArray(id, "markers_vids", {m}, vids, source);
-    WriteArray(id, "markers_obs", {f, m, 3}, obs, source);
-    WriteArray(id, "markers_sim", {f, m, 3}, sim, source);
-    WriteArray(id, "termination", {f}, termination, source);
-    WriteArray(id, "rms", {f}, rms, source);
-    WriteArray(id, "stagei_frames", {stagei.size()}, stagei, source);
+    hdf5::WriteDataset(id, "markers_vids", {m}, vids, source);
+    hdf5::WriteDataset(id, "markers_obs", {f, m, 3}, obs, source);
+    hdf5::WriteDataset(id, "markers_sim", {f, m, 3}, sim, source);
+    hdf5::WriteDataset(id, "termination", {f}, termination, source);
+    hdf5::WriteDataset(id, "rms", {f}, rms, source);
+    hdf5::WriteDataset(id, "stagei_frames", {stagei.size()}, stagei, source);
     hdf5::WriteStringAttribute(id, "format", "soma-solve", source);
     hdf5::WriteStringAttribute(id, "body", output.body, source);
     hdf5::WriteStringArrayAttribute(id, "labels", output.labels, source);
@@ -130,6 +107,107 @@ void WriteSolveOutput(const std::filesystem::path& path,
     }
   }
   CommitTempFile(temp, path);
+}
+
+SolveOutput ReadSolveOutput(const std::filesystem::path& path) {
+  const std::string source = path.string();
+  std::error_code error;
+  if (!std::filesystem::is_regular_file(path, error)) {
+    throw IoError(fmt::format(
+        "{}: no such file (expected a soma solve output, HDF5)", source));
+  }
+  std::lock_guard lock(hdf5::Hdf5Mutex());
+  const std::string bad = hdf5::InvalidFilePrefix(source, "soma solve output");
+  if (H5Fis_hdf5(source.c_str()) <= 0) {
+    throw IoError(bad + "not an HDF5 file (or truncated)");
+  }
+  const Hid file = Check(H5Fopen(source.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT),
+                         H5Fclose,
+                         bad + "cannot open (truncated?)");
+  const hid_t id = file.get();
+  if (H5Aexists(id, "format") <= 0) {
+    throw IoError(fmt::format(
+        "{}missing attribute 'format' (expected '{}')", bad, kFormat));
+  }
+  const std::string format = hdf5::ReadStringAttribute(id, "format", bad);
+  if (format != kFormat) {
+    throw IoError(fmt::format(
+        "{}attribute 'format' is '{}', expected '{}'", bad, format, kFormat));
+  }
+  SolveOutput out;
+  out.body = hdf5::ReadStringAttribute(id, "body", bad);
+  out.labels = hdf5::ReadStringArrayAttribute(id, "labels", bad);
+  out.joint_names = hdf5::ReadStringArrayAttribute(id, "joint_names", bad);
+  out.frame_rate = hdf5::ReadNumberAttribute<double>(id, "frame_rate", bad);
+  const int64_t num_frames =
+      hdf5::ReadNumberAttribute<int64_t>(id, "num_frames", bad);
+
+  const hsize_t f = static_cast<hsize_t>(std::max<int64_t>(num_frames, 0));
+  const hsize_t m = out.labels.size();
+  const hsize_t j = out.joint_names.size();
+  const auto read_double = [&](const char* name,
+                               const std::vector<hsize_t>& dims) {
+    return hdf5::ReadDataset<double>(id, name, dims, bad);
+  };
+  const auto read_int = [&](const char* name,
+                            const std::vector<hsize_t>& dims) {
+    return hdf5::ReadDataset<int32_t>(id, name, dims, bad);
+  };
+  const auto read_float = [&](const char* name,
+                              const std::vector<hsize_t>& dims) {
+    return hdf5::ReadDataset<float>(id, name, dims, bad);
+  };
+  // Shapes: F = num_frames, J = joint names, M = labels (0: any size).
+  const std::vector<double> trans = read_double("trans", {f, 3});
+  const std::vector<double> poses = read_double("poses", {f, 3 * j});
+  const std::vector<double> betas = read_double("betas", {0});
+  const std::vector<double> latent = read_double("markers_latent", {m, 3});
+  const std::vector<double> offsets = read_double("marker_offsets", {m, 3});
+  const std::vector<int32_t> vids = read_int("markers_vids", {m});
+  const std::vector<float> obs = read_float("markers_obs", {f, m, 3});
+  const std::vector<float> sim = read_float("markers_sim", {f, m, 3});
+  const std::vector<int32_t> termination = read_int("termination", {f});
+  const std::vector<double> rms = read_double("rms", {f});
+  const std::vector<int32_t> stagei = read_int("stagei_frames", {0});
+
+  out.betas = Eigen::Map<const Eigen::VectorXd>(
+      betas.data(), static_cast<Eigen::Index>(betas.size()));
+  out.markers_latent = ToMatrix3X(latent.data(), m);
+  out.marker_offsets = ToMatrix3X(offsets.data(), m);
+  out.marker_vertex_ids.assign(vids.begin(), vids.end());
+  out.stagei_frames.assign(stagei.begin(), stagei.end());
+  out.frame_params.resize(f);
+  out.observed.resize(f);
+  out.simulated.resize(f);
+  out.summaries.resize(f);
+  for (hsize_t t = 0; t < f; ++t) {
+    Eigen::VectorXd& p = out.frame_params[t];
+    p.resize(static_cast<Eigen::Index>(3 + 3 * j));
+    for (hsize_t k = 0; k < 3; ++k) p(k) = trans[3 * t + k];
+    for (hsize_t k = 0; k < 3 * j; ++k) {
+      p(static_cast<Eigen::Index>(3 + k)) = poses[3 * j * t + k];
+    }
+    out.observed[t].resize(3, static_cast<Eigen::Index>(m));
+    out.simulated[t].resize(3, static_cast<Eigen::Index>(m));
+    for (hsize_t k = 0; k < 3 * m; ++k) {
+      out.observed[t].data()[k] = obs[3 * m * t + k];
+      out.simulated[t].data()[k] = sim[3 * m * t + k];
+    }
+    const int32_t code = termination[t];
+    if (code < static_cast<int32_t>(SolveTermination::kConverged) ||
+        code > static_cast<int32_t>(SolveTermination::kSkipped)) {
+      throw IoError(fmt::format(
+          "{}dataset 'termination' has {} at frame {}, expected 0..3",
+          bad,
+          code,
+          t));
+    }
+    SolveSummary& summary = out.summaries[t];
+    summary.frame = static_cast<int>(t);
+    summary.termination = static_cast<SolveTermination>(code);
+    summary.rms_m = rms[t];
+  }
+  return out;
 }
 
 }  // namespace soma

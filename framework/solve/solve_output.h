@@ -10,7 +10,7 @@
 //   /termination     F int32 (0 converged, 1 no convergence, 2 failure,
 //                    3 skipped), /rms F float64 (metres), /stagei_frames
 // attributes: format "soma-solve", labels, joint_names, body, frame_rate,
-// num_frames; written atomically.
+// num_frames; written atomically. ReadSolveOutput reads it back.
 #pragma once
 
 #include "framework/solve/solve_summary.h"
@@ -42,5 +42,16 @@ struct SolveOutput {
 /// Writes `output` to `path` (HDF5, atomically). Throws IoError/ShapeError.
 void WriteSolveOutput(const std::filesystem::path& path,
                       const SolveOutput& output);
+
+/// Reads a file written by WriteSolveOutput (the inverse; observed and
+/// simulated markers come back as float32 values). Per-frame summaries carry
+/// what the file stores: `frame` (the index in the file; the solve's
+/// start/stride are not stored), `termination` and `rms_m` (NaN for frames
+/// that are not usable); the other summary fields keep their defaults.
+/// Throws IoError ("<file>: ...") for a missing or non-HDF5 file, a `format`
+/// attribute other than "soma-solve", a missing dataset / attribute, or a
+/// dataset whose shape disagrees with the attributes (e.g. `poses` not
+/// F x 3J with F = num_frames, J = |joint_names|), naming the dataset.
+SolveOutput ReadSolveOutput(const std::filesystem::path& path);
 
 }  // namespace soma

@@ -11,20 +11,39 @@
 // Points are compared by exact coordinates, so both must come from the same
 // capture. With several outputs (e.g. models trained with different seeds)
 // every output is scored and the mean +- std over outputs is reported too.
+//
+// Body-fit metrics (issue #8 item 6; framework/eval/body_metrics.h): given
+// two `soma solve` outputs of the same capture, the fit from ground-truth
+// labels and the fit from predicted labels,
+//
+//   soma eval task.body_fit_gt=<gt_run>/<take>_stageii.h5
+//             task.body_fit_rec=<rec_run>/<take>_stageii.h5     (one line)
+//
+// eval builds the body from the `body` group (as `soma solve` does; use the
+// same body), poses both fits on every frame both solved and reports V2V
+// (`v2v_mm`), the joint position error (`joint_err_mm`), PCK at
+// `task.pck_thresholds_mm` (`pck10`, `pck30`, `pck70` by default, percent of
+// joints) and the frames compared (`body_frames`), and writes
+// body_metrics.csv (per frame). Either pair may be given alone: `gt` + `rec`
+// (labelling), `body_fit_gt` + `body_fit_rec` (body fits), or both.
 #include "framework/body/marker_layout.h"
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
 #include "framework/core/progress.h"
+#include "framework/eval/body_metrics.h"
 #include "framework/eval/labeling_metrics.h"
 #include "framework/io/c3d.h"
 #include "framework/io/mocap_dataset.h"
 #include "framework/registry/registry.h"
+#include "framework/solve/solve_output.h"
+#include "framework/tasks/components.h"
 #include "framework/tasks/task.h"
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <sstream>
@@ -128,9 +147,15 @@ ScoredSequence ReadGroundTruth(const fs::path& path) {
 }
 
 struct EvalOptions {
-  std::string gt;
+  std::string gt;  // empty: no labelling evaluation
   std::vector<std::string> rec;
   double tolerance = 1e-8;
+  std::string body_fit_gt;  // empty: no body-fit metrics
+  std::string body_fit_rec;
+  BodyMetricsOptions body;
+
+  bool labelling() const { return !gt.empty(); }
+  bool body_fits() const { return !body_fit_gt.empty(); }
 };
 
 std::string Pm(const Summary& s) {
@@ -141,7 +166,16 @@ class EvalTask : public Task {
  public:
   explicit EvalTask(EvalOptions options) : options_(std::move(options)) {}
 
-  void Run(const ConfigNode& /*cfg*/, RunContext& ctx) override {
+  void Run(const ConfigNode& cfg, RunContext& ctx) override {
+    std::string md;
+    if (options_.labelling()) md += EvaluateLabelling(ctx);
+    if (options_.body_fits()) md += EvaluateBodyFits(cfg, ctx);
+    WriteFileAtomic(ctx.output_dir / "eval.md", md);
+  }
+
+ private:
+  /// Scores the labelled outputs; returns the eval.md section.
+  std::string EvaluateLabelling(RunContext& ctx) const {
     const ScoredSequence gt = ReadGroundTruth(options_.gt);
     const MatchTolerance tolerance{options_.tolerance};
     std::ostringstream per_frame;
@@ -193,13 +227,70 @@ class EvalTask : public Task {
     const ConfusionMatrix confusion = ComputeConfusionMatrix(all_pairs);
     WriteConfusionMatrixCsv(confusion, ctx.output_dir / "confusion.csv");
     WriteConfusionMatrixPng(confusion, ctx.output_dir / "confusion.png");
-    Report(results, pooled, ctx);
+    return Report(results, pooled, ctx);
   }
 
- private:
-  void Report(const std::vector<LabelingEvaluator::Result>& results,
-              const LabelingMetrics& pooled,
-              RunContext& ctx) const {
+  /// Compares the two body fits; returns the eval.md section.
+  std::string EvaluateBodyFits(const ConfigNode& cfg, RunContext& ctx) const {
+    const SolveOutput reference = ReadSolveOutput(options_.body_fit_gt);
+    const SolveOutput candidate = ReadSolveOutput(options_.body_fit_rec);
+    BuildContext build(ctx.seed, ctx.output_dir.string());
+    const BodyModel body = BuildBody(cfg, build);
+    const BodyMetrics m =
+        ComputeBodyMetrics(body, reference, candidate, options_.body);
+    WriteFileAtomic(ctx.output_dir / "body_metrics.csv", BodyMetricsToCsv(m));
+    if (m.frames_compared == 0) {
+      SOMA_LOG(WARNING,
+               "eval: the body fits {} and {} have no solved frame in common; "
+               "the body metrics are NaN",
+               options_.body_fit_gt,
+               options_.body_fit_rec);
+    }
+    SOMA_LOG(INFO, "eval: {}", m.BriefReport());
+    ctx.ReportMetric("v2v_mm", m.v2v_mm);
+    ctx.ReportMetric("joint_err_mm", m.joint_err_mm);
+    for (size_t k = 0; k < m.pck.size(); ++k) {
+      ctx.ReportMetric(PckMetricName(m.pck_thresholds_mm[k]), m.pck[k]);
+    }
+    ctx.ReportMetric("body_frames", m.frames_compared);
+    ctx.ReportMetric("body_frames_excluded", m.frames_excluded);
+
+    std::string md = fmt::format(
+        "# Body-fit evaluation\n\nReference (fit from ground-truth labels): "
+        "`{}`\nCandidate (fit from predicted labels): `{}`\nBody: `{}`\n\n"
+        "Means over the {} of {} frames both fits solved (body_metrics.csv "
+        "has every frame). V2V: mean per-vertex distance of the posed meshes; "
+        "joint error: mean per-joint distance; PCK: percent of joints closer "
+        "than the threshold (Noise-in Bias-out Eq. 13).\n\n",
+        options_.body_fit_gt,
+        options_.body_fit_rec,
+        body.name,
+        m.frames_compared,
+        m.frames_total);
+    md += "| V2V (mm) | max frame V2V (mm) | joint error (mm) |";
+    std::string rule = "|---|---|---|";
+    std::string row = fmt::format(
+        "| {:.2f} | {:.2f} | {:.2f} |", m.v2v_mm, m.max_v2v_mm, m.joint_err_mm);
+    for (size_t k = 0; k < m.pck.size(); ++k) {
+      md += fmt::format(" PCK@{:g} mm (%) |", m.pck_thresholds_mm[k]);
+      rule += "---|";
+      row += fmt::format(" {:.1f} |", m.pck[k]);
+    }
+    md += "\n" + rule + "\n" + row + "\n";
+    if (m.frames_excluded > 0) {
+      md += fmt::format("\nExcluded frames ({}):", m.frames_excluded);
+      for (const auto& [reason, count] : m.excluded_by_reason) {
+        md += fmt::format(" {} {};", reason, count);
+      }
+      md.back() = '.';
+      md += "\n";
+    }
+    return md;
+  }
+
+  std::string Report(const std::vector<LabelingEvaluator::Result>& results,
+                     const LabelingMetrics& pooled,
+                     RunContext& ctx) const {
     std::ostringstream md;
     md << fmt::format("# Labelling evaluation\n\nGround truth: `{}`\n\n",
                       options_.gt);
@@ -265,12 +356,12 @@ class EvalTask : public Task {
         pooled.f1,
         pooled.num_pairs,
         pooled.classes.size());
-    WriteFileAtomic(ctx.output_dir / "eval.md", md.str());
     SOMA_LOG(INFO,
              "eval: accuracy {} F1 {} (mean ± std over {} frames)",
              Pm(first.accuracy),
              Pm(first.f1),
              first.num_frames);
+    return md.str() + "\n";
   }
 
   EvalOptions options_;
@@ -282,15 +373,51 @@ void RegisterEvalTask(Registry<Task>& registry) {
   registry.Register("eval", [](const ConfigNode& node, BuildContext&) {
     ConfigReader reader(node);
     EvalOptions options;
-    reader.Require("gt", &options.gt);
-    if (const ConfigNode* rec = node.Find("rec"); rec && rec->IsString()) {
-      reader.Require("rec", &options.rec.emplace_back());
-    } else {
-      reader.Require("rec", &options.rec);
+    // Each pair is optional: absent, null or ??? mean "not given"; with
+    // neither pair the missing `gt` is reported as a mandatory value.
+    const auto given = [&](const char* key) {
+      const ConfigNode* value = node.Find(key);
+      if (value == nullptr || value->IsNull() || value->IsMissing()) {
+        reader.Ignore(key);
+        return false;
+      }
+      return true;
+    };
+    if (given("gt")) reader.Read("gt", &options.gt);
+    if (given("rec")) {
+      if (node.at("rec").IsString()) {
+        reader.Read("rec", &options.rec.emplace_back());
+      } else {
+        reader.Read("rec", &options.rec);
+      }
+    }
+    if (given("body_fit_gt")) reader.Read("body_fit_gt", &options.body_fit_gt);
+    if (given("body_fit_rec")) {
+      reader.Read("body_fit_rec", &options.body_fit_rec);
+    }
+    if (!options.labelling() && !options.body_fits()) {
+      throw MissingMandatoryValue(fmt::format(
+          "MissingMandatoryValue: {}.gt (give task.gt and task.rec to score "
+          "labels, or task.body_fit_gt and task.body_fit_rec to compare body "
+          "fits)",
+          node.path().empty() ? "task" : node.path()));
     }
     reader.Read("tolerance", &options.tolerance);
-    reader.Check("rec", !options.rec.empty(), "at least one labelled output");
+    reader.Read("pck_thresholds_mm", &options.body.pck_thresholds_mm);
+    reader.Check("rec",
+                 options.labelling() == !options.rec.empty(),
+                 "at least one labelled output when gt is given, none "
+                 "without gt");
     reader.Check("tolerance", options.tolerance >= 0, "tolerance >= 0");
+    reader.Check("body_fit_rec",
+                 options.body_fits() == !options.body_fit_rec.empty(),
+                 "body_fit_gt and body_fit_rec are given together");
+    reader.Check("pck_thresholds_mm",
+                 !options.body.pck_thresholds_mm.empty() &&
+                     std::all_of(options.body.pck_thresholds_mm.begin(),
+                                 options.body.pck_thresholds_mm.end(),
+                                 [](double t) { return t > 0; }),
+                 "at least one threshold, each > 0 mm");
     reader.Finish();
     return std::make_unique<EvalTask>(std::move(options));
   });
