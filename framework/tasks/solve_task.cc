@@ -8,7 +8,11 @@
 //   <take>_stagei.json         the fitted layout (MoSh++ "finetuned" layout:
 //                              nearest canonical vertex of each latent marker)
 //   <take>_stagei.csv          per-label vertex ids and distances
+//   meshes/<take>_<frame>.ply  with task.mesh_every=k: the posed body of
+//                              every k-th frame, observed markers green,
+//                              simulated red
 // and reports frames, converged/skipped/failed counts, RMS and frames/s.
+#include "framework/body/mesh_export.h"
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
@@ -18,6 +22,7 @@
 #include "framework/solve/body_solver.h"
 #include "framework/solve/labelled_markers.h"
 #include "framework/solve/layout_fit.h"
+#include "framework/solve/marker_model.h"
 #include "framework/tasks/components.h"
 #include "framework/tasks/task.h"
 
@@ -28,7 +33,46 @@ namespace {
 
 struct SolveTaskOptions {
   std::string input;
+  int mesh_every = 0;  // 0: no meshes; k: every k-th solved frame
 };
+
+/// meshes/<stem>_<frame>.ply for every `every`-th usable frame of `output`:
+/// the posed body with the observed (green) and simulated (red) markers.
+int ExportMeshes(const BodyModel& body,
+                 const SolveOutput& output,
+                 int every,
+                 const std::filesystem::path& dir,
+                 const std::string& stem) {
+  int written = 0;
+  for (size_t i = 0; i < output.frame_params.size(); i += every) {
+    if (!output.summaries[i].usable()) continue;
+    const BodyPose pose =
+        UnpackFrameParams(output.frame_params[i].data(), body.num_joints());
+    ColoredPoints points;
+    const Eigen::Matrix3Xd& obs = output.observed[i];
+    const Eigen::Matrix3Xd& sim = output.simulated[i];
+    points.positions.resize(3, obs.cols() + sim.cols());
+    int n = 0;
+    for (int m = 0; m < obs.cols(); ++m) {
+      if (!obs.col(m).allFinite()) continue;
+      points.positions.col(n++) = obs.col(m);
+      points.colors.push_back(Rgb{40, 200, 60});
+    }
+    for (int m = 0; m < sim.cols(); ++m) {
+      if (!sim.col(m).allFinite()) continue;
+      points.positions.col(n++) = sim.col(m);
+      points.colors.push_back(Rgb{220, 40, 40});
+    }
+    points.positions.conservativeResize(3, n);
+    WritePly(
+        dir / fmt::format("{}_{:05d}.ply", stem, output.summaries[i].frame),
+        PoseVertices(body, output.betas, pose),
+        body.faces,
+        points);
+    ++written;
+  }
+  return written;
+}
 
 class SolveTask : public Task {
  public:
@@ -69,6 +113,14 @@ class SolveTask : public Task {
     WriteSolveOutput(ctx.output_dir / (stem + "_stageii.h5"), result.output);
     WriteFileAtomic(ctx.output_dir / (stem + "_solve_summary.csv"),
                     SolveSummariesToCsv(result.output.summaries));
+    if (options_.mesh_every > 0) {
+      const int meshes = ExportMeshes(body,
+                                      result.output,
+                                      options_.mesh_every,
+                                      ctx.output_dir / "meshes",
+                                      stem);
+      SOMA_LOG(INFO, "solve: wrote {} meshes to meshes/", meshes);
+    }
     LayoutFitResult fitted;
     fitted.layout = NearestVertexLayout(body,
                                         layout,
@@ -107,6 +159,8 @@ void RegisterSolveTask(Registry<Task>& registry) {
     ConfigReader reader(node);
     SolveTaskOptions options;
     reader.Require("input", &options.input);
+    reader.Read("mesh_every", &options.mesh_every);
+    reader.Check("mesh_every", options.mesh_every >= 0, "mesh_every >= 0");
     reader.Finish();
     return std::make_unique<SolveTask>(std::move(options));
   });

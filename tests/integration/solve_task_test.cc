@@ -53,6 +53,7 @@ TEST(SolveTasks, FitPriorThenSolveWithTheGmmPrior) {
                                   CmuTake(),
                                   "hydra.run.dir=solve",
                                   "solver.end=20",
+                                  "task.mesh_every=10",
                                   "pose_prior=gmm",
                                   "pose_prior.path=" + path},
                                  &err),
@@ -63,6 +64,10 @@ TEST(SolveTasks, FitPriorThenSolveWithTheGmmPrior) {
   EXPECT_EQ(solve.at("failed").AsDouble(), 0);
   EXPECT_LT(solve.at("stageii_mean_rms_mm").AsDouble(), 20.0);
   EXPECT_TRUE(fs::exists(dir / "solve/cmu_01_01_stageii.h5"));
+  // Meshes of frames 0 and 10 (every 10th), none of frame 5.
+  EXPECT_TRUE(fs::exists(dir / "solve/meshes/cmu_01_01_00000.ply"));
+  EXPECT_TRUE(fs::exists(dir / "solve/meshes/cmu_01_01_00010.ply"));
+  EXPECT_FALSE(fs::exists(dir / "solve/meshes/cmu_01_01_00005.ply"));
 
   // A missing prior file: one line naming it, non-zero exit.
   EXPECT_NE(testing::RunSomaTask(dir,
