@@ -6,6 +6,7 @@
 namespace soma {
 
 // Each task registers itself from its own file.
+void RegisterAttentionSpanTask(Registry<Task>& registry);
 void RegisterCorruptTask(Registry<Task>& registry);
 void RegisterCoverageTask(Registry<Task>& registry);
 void RegisterDemoTask(Registry<Task>& registry);
@@ -22,6 +23,7 @@ void RegisterTrainTask(Registry<Task>& registry);
 
 void RegisterTasks() {
   Registry<Task>& registry = GetRegistry<Task>();
+  RegisterAttentionSpanTask(registry);
   RegisterCorruptTask(registry);
   RegisterCoverageTask(registry);
   RegisterDemoTask(registry);

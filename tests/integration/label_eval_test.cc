@@ -222,6 +222,25 @@ TEST(LabelTask, TinyModelLabelsACorruptedTakeAndIsScored) {
     EXPECT_GE(acc, 0.0);
     EXPECT_LE(acc, 1.0);
   }
+  // Appendix A on the same tiny model (one attention layer).
+  ASSERT_EQ(
+      testing::RunSomaTask(dir,
+                           {"attention_span",
+                            "hydra.run.dir=span",
+                            "task.checkpoints=" + checkpoint,
+                            "task.input=" + (testing::SharedDataDir() / "c3d" /
+                                             "HDM_mm_01-02_03_120.c3d")
+                                                .string(),
+                            "task.max_frames=64"},
+                           &err),
+      0)
+      << err;
+  const double span = Metrics(dir / "span").at("span_layer1_m").AsDouble();
+  EXPECT_GT(span, 0.05);  // metres: a body-sized spread, not a NaN or 0
+  EXPECT_LT(span, 2.0);
+  EXPECT_TRUE(fs::exists(dir / "span/attention_span.png"));
+  EXPECT_NE(ReadFile(dir / "span/attention_span.md").find("| 1 |"),
+            std::string::npos);
   EXPECT_NE(
       testing::RunSomaTask(dir,
                            {"label",

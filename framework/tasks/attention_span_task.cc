@@ -1,0 +1,369 @@
+// `soma attention_span`: SOMA's Appendix A, the self-attention span per
+// layer of trained labelers, in metres (framework/eval/attention_span.h).
+//
+//   soma attention_span 'task.checkpoints=[s0/best.pt,s1/best.pt]'
+//
+// For each checkpoint: the real labelled take `task.input` (default the
+// HDM05 take) is passed through the network without noise, points ordered
+// by the model's labels, on up to `max_frames` frames that have every model
+// label (drawn with `seed`); per layer the attention weights are maxed over
+// heads and averaged over frames (the paper's procedure), then weighted by
+// the distances between the markers (`layout` group) on the body (`body`
+// group) in an A-pose (arms lowered by `arm_angle_deg` from the rest
+// T-pose). Writes attention_span.md (per layer: the span of every model,
+// mean +- std over models, and the paper's claim, "the span narrows with
+// depth", checked per model), attention_span.csv and attention_span.png.
+#include "framework/body/marker_layout.h"
+#include "framework/config/decode.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+#include "framework/core/logging.h"
+#include "framework/core/plot.h"
+#include "framework/core/random.h"
+#include "framework/eval/attention_span.h"
+#include "framework/io/c3d.h"
+#include "framework/model/labeler.h"
+#include "framework/model/torch_utils.h"
+#include "framework/registry/registry.h"
+#include "framework/tasks/components.h"
+#include "framework/tasks/task.h"
+#include "framework/train/trainer.h"
+
+#include <fmt/format.h>
+#include <torch/torch.h>
+
+#include <cmath>
+#include <numbers>
+#include <sstream>
+
+namespace soma {
+namespace {
+
+struct AttentionSpanOptions {
+  std::vector<std::string> checkpoints;
+  std::string input;
+  int max_frames = 2000;
+  uint64_t seed = 0;
+  double arm_angle_deg = 45.0;
+  int batch_size = 256;
+};
+
+/// Marker positions (3 x L, model label order) on `body` at mean shape in
+/// an A-pose: the shoulders rotated `arm_angle_deg` down about the
+/// front-back axis (the procedural and MakeHuman rest poses are T-poses
+/// with the left arm along +x, z up).
+Eigen::Matrix3Xd APoseMarkers(const BodyModel& body,
+                              const MarkerLayout& layout,
+                              const std::vector<std::string>& labels,
+                              double arm_angle_deg) {
+  BodyPose pose = BodyPose::Rest(body.num_joints());
+  const double angle = arm_angle_deg * std::numbers::pi / 180.0;
+  for (const auto& [joint, sign] :
+       {std::pair<const char*, double>{"left_shoulder", 1.0},
+        {"right_shoulder", -1.0}}) {
+    const int j = body.FindJoint(joint);
+    if (j < 0) {
+      throw ShapeError(fmt::format(
+          "attention_span: body '{}' has no joint '{}' to lower the arms "
+          "(set task.arm_angle_deg=0 for the rest pose)",
+          body.name,
+          joint));
+    }
+    pose.rotations.col(j) = Eigen::Vector3d(0, sign * angle, 0);
+  }
+  const Eigen::Matrix3Xd vertices =
+      PoseVertices(body, Eigen::VectorXd::Zero(body.num_betas()), pose);
+  const Eigen::Matrix3Xd all =
+      MarkerPositions(layout, vertices, VertexNormals(vertices, body.faces));
+  Eigen::Matrix3Xd markers(3, labels.size());
+  for (size_t l = 0; l < labels.size(); ++l) {
+    const int m = layout.FindLabel(labels[l]);
+    if (m < 0) {
+      throw ConfigError(fmt::format(
+          "attention_span: the model's label '{}' is not in the layout "
+          "(choose the layout the model was trained with, e.g. "
+          "layout=superset89)",
+          labels[l]));
+    }
+    markers.col(l) = all.col(m);
+  }
+  return markers;
+}
+
+/// Frames x labels x 3 (metres) of the take's frames that have every label.
+torch::Tensor CompleteFrames(const C3dData& c3d,
+                             const std::vector<std::string>& labels,
+                             const std::string& source,
+                             int max_frames,
+                             uint64_t seed) {
+  std::vector<int> column(labels.size(), -1);
+  for (int k = 0; k < c3d.num_points; ++k) {
+    const std::string label = CanonicalMarkerLabel(c3d.labels[k]);
+    for (size_t l = 0; l < labels.size(); ++l) {
+      if (labels[l] == label) column[l] = k;
+    }
+  }
+  for (size_t l = 0; l < labels.size(); ++l) {
+    if (column[l] < 0) {
+      throw IoError(fmt::format(
+          "{}: no column labelled '{}' (the model's labels must all be in "
+          "the take)",
+          source,
+          labels[l]));
+    }
+  }
+  std::vector<int> frames;
+  for (int t = 0; t < c3d.num_frames; ++t) {
+    bool complete = true;
+    for (int k : column) {
+      const Eigen::Vector3f p = c3d.Point(t, k);
+      complete = complete && c3d.valid(t, k) && p.allFinite() &&
+                 !(p.array() == 0.0f).all();
+    }
+    if (complete) frames.push_back(t);
+  }
+  if (frames.empty()) {
+    throw IoError(
+        fmt::format("{}: no frame has all {} labels", source, labels.size()));
+  }
+  if (static_cast<int>(frames.size()) > max_frames) {
+    Rng rng = Rng(seed).Stream("attention_span/frames");
+    std::vector<int> picked;
+    for (int i : rng.SampleWithoutReplacement(static_cast<int>(frames.size()),
+                                              max_frames)) {
+      picked.push_back(frames[i]);
+    }
+    std::sort(picked.begin(), picked.end());
+    frames = std::move(picked);
+  }
+  const double to_metres = c3d.MetresPerUnit();
+  torch::Tensor points = torch::zeros({static_cast<int64_t>(frames.size()),
+                                       static_cast<int64_t>(labels.size()),
+                                       3});
+  auto a = points.accessor<float, 3>();
+  for (size_t f = 0; f < frames.size(); ++f) {
+    for (size_t l = 0; l < labels.size(); ++l) {
+      const Eigen::Vector3f p = c3d.Point(frames[f], column[l]);
+      for (int i = 0; i < 3; ++i) {
+        a[f][l][i] = static_cast<float>(p[i] * to_metres);
+      }
+    }
+  }
+  return points;
+}
+
+/// Per layer: attention maxed over heads, averaged over frames (L x L).
+std::vector<Eigen::MatrixXd> MeanAttention(LabelerImpl& model,
+                                           const torch::Tensor& points,
+                                           int batch_size) {
+  torch::NoGradGuard no_grad;
+  model.eval();
+  torch::Tensor sum;
+  const int64_t frames = points.size(0);
+  for (int64_t t0 = 0; t0 < frames; t0 += batch_size) {
+    const int64_t n = std::min<int64_t>(batch_size, frames - t0);
+    const LabelerOutput out =
+        model.forward(points.narrow(0, t0, n), /*return_attention=*/true);
+    if (!out.attention.defined()) {
+      throw ConfigError(
+          "attention_span: the model has no self-attention layers (e.g. "
+          "model=conv1d)");
+    }
+    // B x k x h x N x N -> max over heads -> sum over frames: k x N x N.
+    const torch::Tensor layer_sum =
+        std::get<0>(out.attention.max(/*dim=*/2)).sum(/*dim=*/0);
+    sum = sum.defined() ? sum + layer_sum : layer_sum;
+  }
+  const torch::Tensor mean =
+      (sum / static_cast<double>(frames)).to(torch::kDouble).contiguous();
+  const int64_t k = mean.size(0), n = mean.size(1);
+  std::vector<Eigen::MatrixXd> layers;
+  for (int64_t l = 0; l < k; ++l) {
+    // Row-major N x N (rows = attending marker) into a column-major matrix.
+    layers.push_back(Eigen::Map<const Eigen::Matrix<double,
+                                                    Eigen::Dynamic,
+                                                    Eigen::Dynamic,
+                                                    Eigen::RowMajor>>(
+        mean[l].data_ptr<double>(), n, n));
+  }
+  return layers;
+}
+
+class AttentionSpanTask : public Task {
+ public:
+  explicit AttentionSpanTask(AttentionSpanOptions options)
+      : options_(std::move(options)) {}
+
+  void Run(const ConfigNode& cfg, RunContext& ctx) override {
+    if (const ConfigNode* threads = cfg.Find("threads")) {
+      SetTorchThreads(static_cast<int>(threads->AsInt()));
+    }
+    BuildContext build(ctx.seed, ctx.output_dir.string());
+    const BodyModel body = BuildBody(cfg, build);
+    const MarkerLayout layout = BuildLayout(cfg, body, build);
+    const C3dData c3d = ReadC3d(options_.input);
+
+    // spans[model][layer]
+    std::vector<std::vector<AttentionSpanLayer>> spans;
+    std::vector<std::string> labels;
+    int64_t frames_used = 0;
+    double uniform_span_m = 0.0;
+    for (const std::string& checkpoint : options_.checkpoints) {
+      const CheckpointInfo info = ReadCheckpointInfo(checkpoint);
+      if (!labels.empty() && info.labels != labels) {
+        throw ConfigError(fmt::format(
+            "attention_span: {} has other labels than {} (compare models "
+            "of one layout)",
+            checkpoint,
+            options_.checkpoints.front()));
+      }
+      labels = info.labels;
+      Labeler model = LoadLabelerFromCheckpoint(checkpoint);
+      const torch::Tensor points = CompleteFrames(
+          c3d, labels, options_.input, options_.max_frames, options_.seed);
+      frames_used = points.size(0);
+      const Eigen::MatrixXd distances = PairwiseDistances(
+          APoseMarkers(body, layout, labels, options_.arm_angle_deg));
+      spans.push_back(ComputeAttentionSpan(
+          MeanAttention(*model, points, options_.batch_size), distances));
+      // Reference: attention spread evenly over every marker.
+      uniform_span_m =
+          ComputeAttentionSpan(
+              {Eigen::MatrixXd::Ones(distances.rows(), distances.cols())},
+              distances)
+              .front()
+              .mean_m;
+      std::string line;
+      for (const AttentionSpanLayer& l : spans.back()) {
+        line += fmt::format(" {:.3f}", l.mean_m);
+      }
+      SOMA_LOG(INFO,
+               "attention_span: {}: {} frames, span per layer (m):{}",
+               checkpoint,
+               frames_used,
+               line);
+    }
+    Write(spans, frames_used, uniform_span_m, ctx);
+  }
+
+ private:
+  void Write(const std::vector<std::vector<AttentionSpanLayer>>& spans,
+             int64_t frames_used,
+             double uniform_span_m,
+             RunContext& ctx) const {
+    const size_t models = spans.size();
+    const size_t layers = spans.front().size();
+    std::ostringstream csv;
+    csv << "model,checkpoint,layer,span_m,ci95_m\n";
+    for (size_t m = 0; m < models; ++m) {
+      if (spans[m].size() != layers) {
+        throw ConfigError(
+            "attention_span: the models have different numbers of layers");
+      }
+      for (size_t l = 0; l < layers; ++l) {
+        csv << fmt::format("{},{},{},{:.6f},{:.6f}\n",
+                           m,
+                           options_.checkpoints[m],
+                           l + 1,
+                           spans[m][l].mean_m,
+                           spans[m][l].ci95_m);
+      }
+    }
+    WriteFileAtomic(ctx.output_dir / "attention_span.csv", csv.str());
+
+    std::ostringstream md;
+    md << "# Self-attention span per layer (SOMA Appendix A)\n\n";
+    md << fmt::format(
+        "Take `{}`, {} frames with every label, no noise; attention maxed "
+        "over heads and averaged over frames; distances between the markers "
+        "on the body in an A-pose (arms {} degrees below the T-pose). Span "
+        "of a marker: attention-weighted mean distance to the others; a "
+        "layer's span: the mean over markers (± its 95% interval over "
+        "markers). Last column: mean ± sample std over the {} models.\n\n",
+        options_.input,
+        frames_used,
+        options_.arm_angle_deg,
+        models);
+    md << "| layer |";
+    std::string rule = "|---|";
+    for (size_t m = 0; m < models; ++m) {
+      md << fmt::format(" model {} (m) |", m);
+      rule += "---|";
+    }
+    md << " mean ± std (m) |\n" << rule << "---|\n";
+    std::vector<PlotSeries> series(models);
+    for (size_t l = 0; l < layers; ++l) {
+      md << fmt::format("| {} |", l + 1);
+      double sum = 0.0, sq = 0.0;
+      for (size_t m = 0; m < models; ++m) {
+        const double s = spans[m][l].mean_m;
+        md << fmt::format(" {:.3f} ± {:.3f} |", s, spans[m][l].ci95_m);
+        sum += s;
+        sq += s * s;
+        series[m].name = fmt::format("model {}", m);
+        series[m].x.push_back(static_cast<double>(l + 1));
+        series[m].y.push_back(s);
+      }
+      const double mean = sum / models;
+      const double std =
+          models > 1 ? std::sqrt(std::max(
+                           0.0, (sq - models * mean * mean) / (models - 1)))
+                     : 0.0;
+      md << fmt::format(" {:.3f} ± {:.3f} |\n", mean, std);
+      ctx.ReportMetric(fmt::format("span_layer{}_m", l + 1), mean);
+    }
+    int narrower = 0;
+    for (size_t m = 0; m < models; ++m) {
+      narrower += spans[m].back().mean_m < spans[m].front().mean_m ? 1 : 0;
+    }
+    md << fmt::format(
+        "\nFor reference, attention spread evenly over all markers would "
+        "give {:.3f} m.\n",
+        uniform_span_m);
+    md << fmt::format(
+        "\nPaper's claim, \"the span narrows with depth\" (last layer "
+        "narrower than the first): {} of {} models — {}.\n",
+        narrower,
+        models,
+        narrower == static_cast<int>(models) ? "pass" : "fail");
+    ctx.ReportMetric("models_narrowing", narrower);
+    WriteFileAtomic(ctx.output_dir / "attention_span.md", md.str());
+    PlotOptions plot;
+    plot.title = "Self-attention span per layer";
+    plot.x_label = "layer";
+    plot.y_label = "span (m)";
+    LinePlot(series, plot).WritePng(ctx.output_dir / "attention_span.png");
+  }
+
+  AttentionSpanOptions options_;
+};
+
+}  // namespace
+
+void RegisterAttentionSpanTask(Registry<Task>& registry) {
+  registry.Register(
+      "attention_span", [](const ConfigNode& node, BuildContext&) {
+        ConfigReader reader(node);
+        AttentionSpanOptions o;
+        if (const ConfigNode* c = node.Find("checkpoints");
+            c && c->IsString()) {
+          reader.Require("checkpoints", &o.checkpoints.emplace_back());
+        } else {
+          reader.Require("checkpoints", &o.checkpoints);
+        }
+        reader.Require("input", &o.input);
+        reader.Read("max_frames", &o.max_frames);
+        int64_t seed = 0;
+        reader.Read("seed", &seed);
+        o.seed = static_cast<uint64_t>(seed);
+        reader.Read("arm_angle_deg", &o.arm_angle_deg);
+        reader.Read("batch_size", &o.batch_size);
+        reader.Check("checkpoints", !o.checkpoints.empty(), "one or more");
+        reader.Check("max_frames", o.max_frames >= 1, "max_frames >= 1");
+        reader.Check("batch_size", o.batch_size >= 1, "batch_size >= 1");
+        reader.Finish();
+        return std::make_unique<AttentionSpanTask>(std::move(o));
+      });
+}
+
+}  // namespace soma
