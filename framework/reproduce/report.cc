@@ -113,10 +113,29 @@ std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
         FindCell(cells, claim.worse, claim.worse_test, claim.metric);
     if (better && worse && better->Mean() && worse->Mean()) {
       outcome.gap = *better->Mean() - *worse->Mean();
+      // The same models tested twice: per-seed differences.
+      std::vector<double> differences;
+      if (claim.better == claim.worse) {
+        for (size_t i = 0; i < better->seeds.size(); ++i) {
+          for (size_t j = 0; j < worse->seeds.size(); ++j) {
+            if (better->seeds[i] == worse->seeds[j] &&
+                i < better->seed_means.size() && j < worse->seed_means.size()) {
+              differences.push_back(better->seed_means[i] -
+                                    worse->seed_means[j]);
+            }
+          }
+        }
+      }
       // With one seed on a side, assume that side has the other's spread.
       const std::optional<double> sb_opt = better->SeedStd();
       const std::optional<double> sw_opt = worse->SeedStd();
-      if (sb_opt || sw_opt) {
+      if (differences.size() >= 2) {
+        CellResult paired;
+        paired.seed_means = differences;
+        outcome.paired = true;
+        outcome.gap_se = *paired.SeedStd() /
+                         std::sqrt(static_cast<double>(differences.size()));
+      } else if (sb_opt || sw_opt) {
         const double sb = sb_opt.value_or(*sw_opt);
         const double sw = sw_opt.value_or(*sb_opt);
         outcome.gap_se = std::sqrt(sb * sb / better->seeds_done() +
@@ -268,7 +287,9 @@ void WriteResultsMarkdown(const AblationSpec& spec,
               : fmt::format("|{} − {}| ≤ {:.1f}", better, worse, c.tolerance);
       std::string ours = outcome.gap ? Signed(*outcome.gap) : "—";
       if (outcome.gap_se) {
-        ours += fmt::format(" ± {:.2f} (s.e.)", *outcome.gap_se);
+        ours += fmt::format(" ± {:.2f} ({}s.e.)",
+                            *outcome.gap_se,
+                            outcome.paired ? "paired " : "");
       }
       std::string verdict = "**" + outcome.verdict + "**";
       // A "greater" claim whose gap is under two standard errors is not

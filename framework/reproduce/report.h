@@ -28,6 +28,7 @@ struct CellResult {
   std::string metric;
   std::vector<double> seed_means;       // per-frame mean of each seed, %
   std::vector<double> seed_frame_stds;  // std over frames of each seed, %
+  std::vector<int> seeds;  // the training seed of each entry (may be empty)
   int seeds_planned = 0;
 
   int seeds_done() const { return static_cast<int>(seed_means.size()); }
@@ -42,10 +43,14 @@ struct CellResult {
 struct ClaimOutcome {
   const AblationClaim* claim = nullptr;
   std::optional<double> gap;  // ours: better - worse, points
-  /// Standard error of `gap` from the seed spread of both sides
-  /// (sqrt(s_b^2/n_b + s_w^2/n_w)); a side with one seed borrows the other
-  /// side's s; nullopt when neither side has two seeds.
+  /// Standard error of `gap`. Paired when both sides are the same variant
+  /// (the same models, tested twice) and share >= 2 seeds: the std of the
+  /// per-seed differences / sqrt(n), over the shared seeds. Otherwise from
+  /// the seed spread of both sides (sqrt(s_b^2/n_b + s_w^2/n_w)); a side with
+  /// one seed borrows the other side's s; nullopt when neither side has two
+  /// seeds.
   std::optional<double> gap_se;
+  bool paired = false;              // gap_se is the paired one
   std::optional<double> paper_gap;  // the paper's, when known
   std::string verdict;              // pass | fail | not run
 };

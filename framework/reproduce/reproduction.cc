@@ -433,6 +433,7 @@ std::vector<CellResult> CollectResults(const AblationSpec& spec,
           }
           cell.seed_means.push_back(100.0 * mean->second);
           cell.seed_frame_stds.push_back(100.0 * std->second);
+          cell.seeds.push_back(m.seed);
         }
         cells.push_back(std::move(cell));
       }

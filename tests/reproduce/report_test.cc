@@ -58,6 +58,9 @@ CellResult Cell(std::string variant,
                              ? std::vector<double>(cell.seed_means.size(), 5.0)
                              : std::move(frame_stds);
   cell.seeds_planned = 3;
+  for (size_t k = 0; k < cell.seed_means.size(); ++k) {
+    cell.seeds.push_back(static_cast<int>(k));
+  }
   return cell;
 }
 
@@ -92,8 +95,11 @@ TEST(ReportTest, ClaimsAreCheckedWithTheirGaps) {
   EXPECT_EQ(out[2].verdict, "pass");
   EXPECT_NEAR(*out[2].gap, 97.0 - 95.0 - 2.0 / 3.0, 1e-12);
   EXPECT_DOUBLE_EQ(*out[2].paper_gap, 1.0);
-  const double s5 = *Cells()[1].SeedStd();
-  EXPECT_NEAR(*out[2].gap_se, std::sqrt(1.0 / 3 + s5 * s5 / 3), 1e-12);
+  // The same models on two tests: the paired s.e. of the per-seed
+  // differences {1.0, 1.5, 1.5}: std 0.2887 / sqrt(3).
+  EXPECT_TRUE(out[2].paired);
+  EXPECT_NEAR(*out[2].gap_se, std::sqrt(1.0 / 12.0) / std::sqrt(3.0), 1e-12);
+  EXPECT_FALSE(out[0].paired);
   EXPECT_EQ(out[3].verdict, "not run");
   EXPECT_DOUBLE_EQ(*out[3].paper_gap, 1.0);
 }
@@ -102,6 +108,20 @@ TEST(ReportTest, CloseClaimFailsOutsideItsTolerance) {
   std::vector<CellResult> cells = Cells();
   cells[1] = Cell("base", "t5", {90.0, 91.0, 92.0});
   EXPECT_EQ(CheckClaims(Spec(), cells)[2].verdict, "fail");
+}
+
+TEST(ReportTest, PairedStandardErrorOnlyOverSharedSeeds) {
+  std::vector<CellResult> cells = Cells();
+  // t5 has seeds 0 and 2 only: two shared seeds, differences 1.0 and 1.5.
+  cells[1] = Cell("base", "t5", {95.0, 96.5});
+  cells[1].seeds = {0, 2};
+  const ClaimOutcome out = CheckClaims(Spec(), cells)[2];
+  EXPECT_TRUE(out.paired);
+  EXPECT_NEAR(*out.gap_se, std::sqrt(0.125) / std::sqrt(2.0), 1e-12);
+  // One shared seed: back to the unpaired estimate.
+  cells[1] = Cell("base", "t5", {95.0});
+  cells[1].seeds = {2};
+  EXPECT_FALSE(CheckClaims(Spec(), cells)[2].paired);
 }
 
 TEST(ReportTest, CsvHasOneRowPerVariantTestAndMetricWithStatus) {
@@ -150,7 +170,8 @@ TEST(ReportTest, MarkdownMarksPartialTablesAndShowsClaims) {
   EXPECT_THAT(md, HasSubstr("| no_bank | zero | skipped |"));
   EXPECT_THAT(md, HasSubstr("- **no_bank**: needs the solver"));
   EXPECT_THAT(md, HasSubstr("| +8.00 | +7.00 ± 1.15 (s.e.) | **pass** |"));
-  EXPECT_THAT(md, HasSubstr("| +1.00 | +1.33 ± 0.73 (s.e.) | **pass** |"));
+  EXPECT_THAT(md,
+              HasSubstr("| +1.00 | +1.33 ± 0.17 (paired s.e.) | **pass** |"));
   EXPECT_THAT(md, HasSubstr("**fail**"));
   EXPECT_THAT(md, HasSubstr("base@t0 − base@t5"));
   EXPECT_THAT(md, HasSubstr("+1.00 (Fig. 9) | — | **not run** |"));
