@@ -15,6 +15,7 @@ void RegisterFitLayoutTask(Registry<Task>& registry);
 void RegisterFitPriorTask(Registry<Task>& registry);
 void RegisterInspectTask(Registry<Task>& registry);
 void RegisterLabelTask(Registry<Task>& registry);
+void RegisterNoiseBankTask(Registry<Task>& registry);
 void RegisterRealismTask(Registry<Task>& registry);
 void RegisterReproduceTask(Registry<Task>& registry);
 void RegisterSolveTask(Registry<Task>& registry);
@@ -32,6 +33,7 @@ void RegisterTasks() {
   RegisterFitPriorTask(registry);
   RegisterInspectTask(registry);
   RegisterLabelTask(registry);
+  RegisterNoiseBankTask(registry);
   RegisterRealismTask(registry);
   RegisterReproduceTask(registry);
   RegisterSolveTask(registry);

@@ -69,6 +69,23 @@ TEST(SolveTasks, FitPriorThenSolveWithTheGmmPrior) {
   EXPECT_TRUE(fs::exists(dir / "solve/meshes/cmu_01_01_00010.ply"));
   EXPECT_FALSE(fs::exists(dir / "solve/meshes/cmu_01_01_00005.ply"));
 
+  // The fit's residuals as a real-noise bank (SOMA's AMASS noise model).
+  ASSERT_EQ(testing::RunSomaTask(
+                dir,
+                {"noise_bank",
+                 "hydra.run.dir=bank",
+                 "task.fits=" + (dir / "solve/cmu_01_01_stageii.h5").string()},
+                &err),
+            0)
+      << err;
+  const ConfigNode bank = Metrics(dir / "bank");
+  EXPECT_EQ(bank.at("frames").AsDouble(), 20);
+  EXPECT_EQ(bank.at("rows").AsDouble(), 20);  // every label seen every frame
+  EXPECT_EQ(bank.at("labels_observed").AsDouble(), 41);
+  EXPECT_GT(bank.at("median_residual_mm").AsDouble(), 0.1);
+  EXPECT_LT(bank.at("median_residual_mm").AsDouble(), 20.0);
+  EXPECT_TRUE(fs::exists(dir / "bank/noise_bank.h5"));
+
   // A missing prior file: one line naming it, non-zero exit.
   EXPECT_NE(testing::RunSomaTask(dir,
                                  {"solve",
