@@ -50,6 +50,13 @@ NOTEBOOKS = {
         "on a real HDM05 take (B+C+G). Plot: accuracy vs iterations, ours with seed-std error bars and a "
         "frame-std band. The paper gives this curve only as a figure: there are no paper numbers to plot.",
     ),
+    "fig_c3": (
+        "Fig. C.3 — training with extreme ghost-point distributions",
+        "One model per ghost distribution with up to 60 ghosts per frame (spherical Gaussian, uniform in "
+        "[-2, 2] m, skewed Gaussian) next to the base (up to 3). Plot: validation accuracy per epoch "
+        "(results/fig_c3_curves.csv, mean ± seed std; synthetic frames with each model's training noise) and "
+        "the accuracy of every model on the real HDM05 take (B+C+G). The paper shows curves only.",
+    ),
 }
 
 SETUP = '''\

@@ -38,7 +38,7 @@ import pandas as pd  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch, Rectangle  # noqa: E402
 
-NAMES = ("table1", "table2", "table3", "table5", "fig_c1", "fig_c2")
+NAMES = ("table1", "table2", "table3", "table5", "fig_c1", "fig_c2", "fig_c3")
 
 OURS_COLOR = "tab:blue"
 PAPER_COLOR = "tab:gray"
@@ -105,6 +105,18 @@ def load(name: str) -> pd.DataFrame | None:
         df[col] = pd.to_numeric(df[col].replace("", np.nan), errors="coerce")
     df["status"] = df["status"].str.strip()
     print(f"{path}: {len(df)} rows, status: " + ", ".join(f"{k} {v}" for k, v in df["status"].value_counts().items()))
+    return df
+
+
+def load_curves(name: str) -> pd.DataFrame | None:
+    """results/<name>_curves.csv (per model and epoch: variant, seed, epoch, train_loss, val_loss,
+    val_acc, val_f1; accuracies as fractions), or None when it does not exist yet."""
+    path = results_dir() / f"{name}_curves.csv"
+    if not path.is_file():
+        print(f"results/{name}_curves.csv: no training curves yet (no {path})")
+        return None
+    df = pd.read_csv(path)
+    print(f"{path}: {len(df)} rows, {df.groupby(['variant', 'seed']).ngroups} models")
     return df
 
 
@@ -503,6 +515,56 @@ def plot_fig_c2(df: pd.DataFrame):
     return plot_sweep(df, "fig_c2", "Sinkhorn iterations", "Fig. C.2 — accuracy vs number of Sinkhorn iterations")
 
 
+# --------------------------------------------------------------------------------------------
+# Figure C.3: training curves with extreme ghosts, and the real-data check
+
+
+def plot_fig_c3(df: pd.DataFrame, metric: str = "acc"):
+    curves = load_curves("fig_c3")
+    d = _metric(df, metric)
+    variants = ordered(d["variant"])
+    label = {v: (d[d["variant"] == v]["variant_label"].iloc[0] or v) for v in variants}
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 4.8), constrained_layout=True,
+                                 gridspec_kw={"width_ratios": [3, 2]})
+    if curves is None or curves.empty:
+        ax.text(0.5, 0.5, "no training curves yet", ha="center", va="center", transform=ax.transAxes)
+    else:
+        for n, v in enumerate(variants):
+            c = curves[curves["variant"] == v]
+            if c.empty:
+                continue
+            g = c.groupby("epoch")[f"val_{metric}"].agg(["mean", "std", "count"]).reset_index()
+            color = plt.get_cmap("tab10")(n)
+            seeds = c["seed"].nunique()
+            ax.plot(g["epoch"], 100 * g["mean"], "-o", ms=3, color=color, label=f"{label[v]} ({seeds} seeds)")
+            ax.fill_between(g["epoch"], 100 * (g["mean"] - g["std"].fillna(0)),
+                            100 * (g["mean"] + g["std"].fillna(0)), color=color, alpha=0.15)
+        ax.legend(fontsize=8)
+    ax.set_xlabel("epoch")
+    ax.set_ylabel(f"validation {metric} (%), synthetic frames with the training noise")
+    ax.set_title("training curves (mean ± seed std)", fontsize=10)
+    ax.grid(alpha=0.3)
+    for i, v in enumerate(variants):
+        r = d[d["variant"] == v].iloc[0]
+        note = status_note(r)
+        if pd.isna(r["mean"]):
+            bx.text(1, i, note or "no value", va="center", fontsize=8, color="tab:red")
+            continue
+        bx.barh(i, r["mean"], 0.6, xerr=_num(r["std_seeds"]) or 0, color=plt.get_cmap("tab10")(i), capsize=3,
+                hatch="///" if r["status"] == "partial" else None, edgecolor="black")
+        bx.text(r["mean"] + (_num(r["std_seeds"]) or 0) + 1, i, f"{r['mean']:.2f}" + (f"  ({note})" if note else ""),
+                va="center", fontsize=8)
+    bx.set_yticks(range(len(variants)), [label[v] for v in variants], fontsize=8)
+    bx.invert_yaxis()
+    bx.set_xlim(0, 118)
+    bx.set_xlabel(f"{metric} (%)")
+    tl = d["test_label"].iloc[0] if not d.empty else ""
+    bx.set_title(f"real data: {tl} (± seed std)", fontsize=10)
+    bx.grid(axis="x", alpha=0.3)
+    fig.suptitle("Fig. C.3 — training with extreme ghost-point distributions (the paper shows curves only)")
+    return fig
+
+
 PLOTS = {
     "table1": plot_table1,
     "table2": plot_table2,
@@ -510,6 +572,7 @@ PLOTS = {
     "table5": plot_table5,
     "fig_c1": plot_fig_c1,
     "fig_c2": plot_fig_c2,
+    "fig_c3": plot_fig_c3,
 }
 
 

@@ -442,4 +442,48 @@ std::vector<CellResult> CollectResults(const AblationSpec& spec,
   return cells;
 }
 
+int WriteTrainingCurvesCsv(const ReproductionPlan& plan, const fs::path& path) {
+  static const std::vector<std::string> kColumns = {
+      "epoch", "train_loss", "val_loss", "val_acc", "val_f1"};
+  const auto split = [](const std::string& line) {
+    std::vector<std::string> fields;
+    std::string field;
+    std::istringstream in(line);
+    while (std::getline(in, field, ',')) fields.push_back(field);
+    return fields;
+  };
+  std::ostringstream csv;
+  csv << "variant,seed,epoch,train_loss,val_loss,val_acc,val_f1\n";
+  int rows = 0;
+  for (const PlannedModel& m : plan.models) {
+    const fs::path file = m.dir / "metrics.csv";
+    if (!fs::exists(file)) continue;
+    std::istringstream in(ReadFile(file));
+    std::string line;
+    std::getline(in, line);
+    const std::vector<std::string> header = split(line);
+    std::vector<size_t> index;
+    for (const std::string& column : kColumns) {
+      const auto it = std::find(header.begin(), header.end(), column);
+      if (it == header.end()) {
+        throw IoError(
+            fmt::format("{}: no column '{}' (not a `soma train` metrics.csv)",
+                        file.string(),
+                        column));
+      }
+      index.push_back(static_cast<size_t>(it - header.begin()));
+    }
+    while (std::getline(in, line)) {
+      const std::vector<std::string> fields = split(line);
+      if (fields.empty()) continue;
+      csv << m.variant << ',' << m.seed;
+      for (size_t i : index) csv << ',' << (i < fields.size() ? fields[i] : "");
+      csv << '\n';
+      ++rows;
+    }
+  }
+  WriteFileAtomic(path, csv.str());
+  return rows;
+}
+
 }  // namespace soma

@@ -104,6 +104,14 @@ ReproductionRun RunReproduction(
 std::vector<CellResult> CollectResults(const AblationSpec& spec,
                                        const ReproductionPlan& plan);
 
+/// The training curves of every planned model that has started: one row per
+/// (variant, seed, epoch) from its run dir's metrics.csv (columns variant,
+/// seed, epoch, train_loss, val_loss, val_acc, val_f1; accuracies as
+/// fractions of the synthetic validation set), written to `path`
+/// atomically. Models without a metrics.csv are left out. Returns the rows.
+int WriteTrainingCurvesCsv(const ReproductionPlan& plan,
+                           const std::filesystem::path& path);
+
 /// Models whose every command is done, and the summed wall time recorded in
 /// the ledger.
 ReproductionRun SummarizeLedger(const ReproductionPlan& plan);

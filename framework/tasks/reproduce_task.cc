@@ -76,6 +76,7 @@ class ReproduceTask : public Task {
       CreateDirectories(results);
       WriteResultsCsv(spec, cells, results / (spec.name + ".csv"));
       WriteResultsMarkdown(spec, cells, now, results / (spec.name + ".md"));
+      WriteTrainingCurvesCsv(plan, results / (spec.name + "_curves.csv"));
       return now;
     };
     const ReproductionRun run =

@@ -90,7 +90,9 @@ for nb in "${notebooks[@]}"; do
 done
 
 for csv in "$results"/*.csv; do
-  [[ -f "$nbdir/$(basename "$csv" .csv).ipynb" ]] || echo "note: no notebook plots $csv"
+  base=$(basename "$csv" .csv)
+  base=${base%_curves}  # <name>_curves.csv is read by <name>.ipynb
+  [[ -f "$nbdir/$base.ipynb" ]] || echo "note: no notebook plots $csv"
 done
 echo "run_notebooks: ${#notebooks[@]} notebooks in $((SECONDS - start)) s; results $results, figures $figures"
 if ((${#failed[@]} > 0)); then

@@ -217,5 +217,31 @@ TEST_F(ReproductionTest, CommandsScriptListsEveryCommandQuoted) {
                         "normalization=log_softmax seed=1 hydra.run.dir="));
 }
 
+TEST(TrainingCurves, OneRowPerEpochOfEveryStartedModel) {
+  const fs::path dir = testing::CreateTestDir();
+  ReproductionPlan plan;
+  PlannedModel a;
+  a.variant = "base";
+  a.seed = 1;
+  a.dir = dir / "a";
+  PlannedModel b = a;
+  b.variant = "weak";
+  b.dir = dir / "b";  // not started: no metrics.csv
+  plan.models = {a, b};
+  CreateDirectories(a.dir);
+  // `soma train`'s columns, in its order, with two more than the curves use.
+  WriteFileAtomic(a.dir / "metrics.csv",
+                  "epoch,step,train_loss,val_loss,val_acc,val_f1,lr\n"
+                  "1,10,3.0,2.5,0.40,0.35,0.001\n"
+                  "2,20,2.0,1.5,0.60,0.55,0.001\n");
+  EXPECT_EQ(WriteTrainingCurvesCsv(plan, dir / "curves.csv"), 2);
+  EXPECT_EQ(ReadFile(dir / "curves.csv"),
+            "variant,seed,epoch,train_loss,val_loss,val_acc,val_f1\n"
+            "base,1,1,3.0,2.5,0.40,0.35\n"
+            "base,1,2,2.0,1.5,0.60,0.55\n");
+  WriteFileAtomic(a.dir / "metrics.csv", "epoch,loss\n1,2\n");
+  EXPECT_THROW(WriteTrainingCurvesCsv(plan, dir / "curves.csv"), IoError);
+}
+
 }  // namespace
 }  // namespace soma
