@@ -79,9 +79,7 @@ BodySolveOptions DecodeBodySolveOptions(const ConfigNode& node) {
     s.Read("num_frames", &x.num_frames);
     s.Read("min_available", &x.min_available);
     s.Read("min_available_floor", &x.min_available_floor);
-    int64_t seed = static_cast<int64_t>(x.seed);
-    s.Read("seed", &seed);
-    x.seed = static_cast<uint64_t>(seed);
+    s.Read("seed", &x.seed);
     s.Read("annealing", &x.annealing);
     s.Read("data_weight", &x.data_weight);
     s.Read("marker_norm", &x.marker_norm);

@@ -257,9 +257,7 @@ void RegisterPosePriors() {
     r.Read("frame_stride", &o.frame_stride);
     r.Read("shrinkage", &o.shrinkage);
     r.Read("min_stddev", &o.min_stddev);
-    int64_t seed = static_cast<int64_t>(o.seed);
-    r.Read("seed", &seed);
-    o.seed = static_cast<uint64_t>(seed);
+    r.Read("seed", &o.seed);
     r.Finish();
     if (o.clips_per_type < 1 || o.frame_stride < 1 || !(o.shrinkage >= 0) ||
         o.shrinkage > 1 || !(o.min_stddev > 0)) {

@@ -346,16 +346,14 @@ void RegisterAttentionSpanTask(Registry<Task>& registry) {
         ConfigReader reader(node);
         AttentionSpanOptions o;
         if (const ConfigNode* c = node.Find("checkpoints");
-            c && c->IsString()) {
+            c && (c->IsString() || c->IsMissing())) {
           reader.Require("checkpoints", &o.checkpoints.emplace_back());
         } else {
           reader.Require("checkpoints", &o.checkpoints);
         }
         reader.Require("input", &o.input);
         reader.Read("max_frames", &o.max_frames);
-        int64_t seed = 0;
-        reader.Read("seed", &seed);
-        o.seed = static_cast<uint64_t>(seed);
+        reader.Read("seed", &o.seed);
         reader.Read("arm_angle_deg", &o.arm_angle_deg);
         reader.Read("batch_size", &o.batch_size);
         reader.Check("checkpoints", !o.checkpoints.empty(), "one or more");

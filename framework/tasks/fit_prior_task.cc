@@ -156,9 +156,7 @@ void RegisterFitPriorTask(Registry<Task>& registry) {
       g.Read("max_iterations", &o.gmm.max_iterations);
       g.Read("tolerance", &o.gmm.tolerance);
       g.Read("min_stddev", &o.gmm.min_stddev);
-      int64_t seed = 0;
-      g.Read("seed", &seed);
-      o.gmm.seed = static_cast<uint64_t>(seed);
+      g.Read("seed", &o.gmm.seed);
       g.Finish();
     }
     const ConfigNode* sources = reader.Child("sources");

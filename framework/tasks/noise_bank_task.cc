@@ -136,7 +136,8 @@ void RegisterNoiseBankTask(Registry<Task>& registry) {
   registry.Register("noise_bank", [](const ConfigNode& node, BuildContext&) {
     ConfigReader reader(node);
     NoiseBankOptions o;
-    if (const ConfigNode* f = node.Find("fits"); f && f->IsString()) {
+    if (const ConfigNode* f = node.Find("fits");
+        f && (f->IsString() || f->IsMissing())) {
       reader.Require("fits", &o.fits.emplace_back());
     } else {
       reader.Require("fits", &o.fits);
