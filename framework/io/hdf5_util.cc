@@ -5,6 +5,7 @@
 #include <fmt/format.h>
 
 #include <cstring>
+#include <filesystem>
 
 namespace soma::hdf5 {
 
@@ -180,6 +181,44 @@ void ReadNumberAttribute(hid_t object,
     throw IoError(bad + fmt::format("attribute '{}' is not a number", name));
   }
   CheckStatus(H5Aread(attr.get(), mem_type, value), cannot_read);
+}
+
+Hid OpenFormattedFile(const std::string& path,
+                      const std::string& what,
+                      const std::string& format,
+                      int version,
+                      std::string* bad) {
+  *bad = InvalidFilePrefix(path, what);
+  std::error_code error;
+  if (!std::filesystem::is_regular_file(path, error)) {
+    throw IoError(
+        fmt::format("{}: no such file (expected a {}, HDF5)", path, what));
+  }
+  std::lock_guard lock(Hdf5Mutex());
+  if (H5Fis_hdf5(path.c_str()) <= 0) {
+    throw IoError(*bad + "not an HDF5 file (or truncated)");
+  }
+  Hid file = Check(H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT),
+                   H5Fclose,
+                   *bad + "cannot open (truncated?)");
+  if (H5Aexists(file.get(), "format") <= 0) {
+    throw IoError(fmt::format(
+        "{}missing attribute 'format' (expected '{}')", *bad, format));
+  }
+  const std::string found = ReadStringAttribute(file.get(), "format", *bad);
+  if (found != format) {
+    throw IoError(fmt::format(
+        "{}attribute 'format' is '{}', expected '{}'", *bad, found, format));
+  }
+  if (version > 0) {
+    const int found_version =
+        ReadNumberAttribute<int32_t>(file.get(), "format_version", *bad);
+    if (found_version != version) {
+      throw IoError(fmt::format(
+          "{}format_version = {}, expected {}", *bad, found_version, version));
+    }
+  }
+  return file;
 }
 
 void WriteDataset(hid_t object,

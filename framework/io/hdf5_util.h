@@ -191,6 +191,20 @@ T ReadNumberAttribute(hid_t object, const char* name, const std::string& bad) {
   return value;
 }
 
+// ---- Opening a soma file.
+
+/// Opens `path` read-only as a `what` file (e.g. "soma solve output") whose
+/// root attribute `format` must equal `format` and, when `version` > 0,
+/// `format_version` must equal `version`. IoError naming the file for a
+/// missing file, not HDF5, a missing or other format or version. `*bad`
+/// gets InvalidFilePrefix(path, what) for the caller's own errors. The
+/// caller holds Hdf5Mutex() while it uses the file.
+Hid OpenFormattedFile(const std::string& path,
+                      const std::string& what,
+                      const std::string& format,
+                      int version,
+                      std::string* bad);
+
 // ---- Numeric datasets. Errors name the file (`file` / `bad`) and dataset.
 
 /// Creates dataset `name` of `object` with shape `dims` (row-major) and

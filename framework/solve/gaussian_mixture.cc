@@ -338,28 +338,11 @@ void WriteGaussianMixture(const std::filesystem::path& path,
 }
 
 GaussianMixture ReadGaussianMixture(const std::filesystem::path& path) {
-  const std::string bad = hdf5::InvalidFilePrefix(path.string(), "soma GMM");
-  if (!std::filesystem::is_regular_file(path)) {
-    throw IoError(
-        fmt::format("{}: no such file (a soma GMM .h5)", path.string()));
-  }
   std::lock_guard lock(hdf5::Hdf5Mutex());
-  const hdf5::Hid file =
-      hdf5::Check(H5Fopen(path.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT),
-                  H5Fclose,
-                  fmt::format("{}: not an HDF5 file", path.string()));
+  std::string bad;
+  const hdf5::Hid file = hdf5::OpenFormattedFile(
+      path.string(), "soma GMM", kFormat, kFormatVersion, &bad);
   const hid_t id = file.get();
-  const std::string format = hdf5::ReadStringAttribute(id, "format", bad);
-  if (format != kFormat) {
-    throw IoError(
-        fmt::format("{}format = '{}', expected '{}'", bad, format, kFormat));
-  }
-  const int version =
-      hdf5::ReadNumberAttribute<int32_t>(id, "format_version", bad);
-  if (version != kFormatVersion) {
-    throw IoError(fmt::format(
-        "{}format_version = {}, expected {}", bad, version, kFormatVersion));
-  }
   std::vector<hsize_t> dims;
   const std::vector<double> weights =
       hdf5::ReadDataset<double>(id, "weights", {0}, bad, &dims);

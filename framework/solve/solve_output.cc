@@ -111,29 +111,11 @@ void WriteSolveOutput(const std::filesystem::path& path,
 
 SolveOutput ReadSolveOutput(const std::filesystem::path& path) {
   const std::string source = path.string();
-  std::error_code error;
-  if (!std::filesystem::is_regular_file(path, error)) {
-    throw IoError(fmt::format(
-        "{}: no such file (expected a soma solve output, HDF5)", source));
-  }
   std::lock_guard lock(hdf5::Hdf5Mutex());
-  const std::string bad = hdf5::InvalidFilePrefix(source, "soma solve output");
-  if (H5Fis_hdf5(source.c_str()) <= 0) {
-    throw IoError(bad + "not an HDF5 file (or truncated)");
-  }
-  const Hid file = Check(H5Fopen(source.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT),
-                         H5Fclose,
-                         bad + "cannot open (truncated?)");
+  std::string bad;
+  const Hid file = hdf5::OpenFormattedFile(
+      source, "soma solve output", kFormat, /*version=*/0, &bad);
   const hid_t id = file.get();
-  if (H5Aexists(id, "format") <= 0) {
-    throw IoError(fmt::format(
-        "{}missing attribute 'format' (expected '{}')", bad, kFormat));
-  }
-  const std::string format = hdf5::ReadStringAttribute(id, "format", bad);
-  if (format != kFormat) {
-    throw IoError(fmt::format(
-        "{}attribute 'format' is '{}', expected '{}'", bad, format, kFormat));
-  }
   SolveOutput out;
   out.body = hdf5::ReadStringAttribute(id, "body", bad);
   out.labels = hdf5::ReadStringArrayAttribute(id, "labels", bad);

@@ -159,69 +159,16 @@ void WriteNoiseBank(const NoiseBank& bank, const std::filesystem::path& path) {
 }
 
 NoiseBank ReadNoiseBank(const std::filesystem::path& path) {
-  const std::string file = path.string();
-  std::error_code error;
-  if (!std::filesystem::is_regular_file(path, error)) {
-    throw IoError(fmt::format("{}: noise bank file not found", file));
-  }
   std::lock_guard lock(Hdf5Mutex());
-  const std::string bad = hdf5::InvalidFilePrefix(file, "soma noise bank");
-  if (H5Fis_hdf5(file.c_str()) <= 0) {
-    throw IoError(bad + "not an HDF5 file (or truncated)");
-  }
-  const Hid h5 = Check(H5Fopen(file.c_str(), H5F_ACC_RDONLY, H5P_DEFAULT),
-                       H5Fclose,
-                       bad + "cannot open (truncated?)");
-  const Hid root = Check(H5Gopen2(h5.get(), "/", H5P_DEFAULT), H5Gclose, bad);
-  const std::string format =
-      hdf5::ReadStringAttribute(root.get(), "format", bad);
-  if (format != kFormat) {
-    throw IoError(
-        fmt::format("{}format = '{}', expected '{}'", bad, format, kFormat));
-  }
-  const int version =
-      hdf5::ReadNumberAttribute<int32_t>(root.get(), "format_version", bad);
-  if (version != kFormatVersion) {
-    throw IoError(fmt::format(
-        "{}format_version = {}, expected {}", bad, version, kFormatVersion));
-  }
+  std::string bad;
+  const Hid h5 = hdf5::OpenFormattedFile(
+      path.string(), "soma noise bank", kFormat, kFormatVersion, &bad);
   NoiseBank bank;
-  bank.labels = hdf5::ReadStringArrayAttribute(root.get(), "labels", bad);
-  if (H5Lexists(h5.get(), "residuals", H5P_DEFAULT) <= 0) {
-    throw IoError(bad + "missing dataset 'residuals'");
-  }
-  const Hid data = Check(H5Dopen2(h5.get(), "residuals", H5P_DEFAULT),
-                         H5Dclose,
-                         bad + "cannot open 'residuals'");
-  const Hid space = Check(H5Dget_space(data.get()), H5Sclose, bad);
-  const Hid type = Check(H5Dget_type(data.get()), H5Tclose, bad);
-  hsize_t dims[3] = {0, 0, 0};
-  if (H5Sget_simple_extent_ndims(space.get()) != 3 ||
-      H5Tget_class(type.get()) != H5T_FLOAT || H5Tget_size(type.get()) != 4) {
-    throw IoError(bad + "'residuals' must be K x L x 3 float32");
-  }
-  H5Sget_simple_extent_dims(space.get(), dims, nullptr);
-  if (dims[1] != bank.labels.size() || dims[2] != 3) {
-    throw IoError(fmt::format(
-        "{}'residuals' is {} x {} x {}, expected K x {} x 3 (L = the number "
-        "of labels)",
-        bad,
-        dims[0],
-        dims[1],
-        dims[2],
-        bank.labels.size()));
-  }
+  bank.labels = hdf5::ReadStringArrayAttribute(h5.get(), "labels", bad);
+  std::vector<hsize_t> dims;
+  bank.residuals = hdf5::ReadDataset<float>(
+      h5.get(), "residuals", {0, bank.labels.size(), 3}, bad, &dims);
   bank.num_rows = static_cast<int64_t>(dims[0]);
-  bank.residuals.resize(dims[0] * dims[1] * dims[2]);
-  if (!bank.residuals.empty()) {
-    CheckStatus(H5Dread(data.get(),
-                        H5T_NATIVE_FLOAT,
-                        H5S_ALL,
-                        H5S_ALL,
-                        H5P_DEFAULT,
-                        bank.residuals.data()),
-                bad + "cannot read 'residuals' (truncated?)");
-  }
   return bank;
 }
 
