@@ -122,12 +122,7 @@ BodySolveResult SolveBody(const BodyModel& body,
     throw ShapeError("SolveBody: markers were matched to another layout");
   }
   if (markers.num_frames() == 0) throw Error("SolveBody: no frames");
-  std::vector<int> vids;
-  std::vector<double> distances;
-  for (const MarkerLayout::Marker& m : layout.markers) {
-    vids.push_back(m.vertex_ids.at(0));
-    distances.push_back(m.distance_from_skin);
-  }
+  const auto [vids, distances] = MarkerVertices(layout);
   MarkerModel model(body, vids);
 
   BodySolveResult result;

@@ -53,12 +53,7 @@ LayoutFitResult FitLayoutToFrame(const BodyModel& body,
     throw ShapeError(
         "FitLayoutToFrame: markers were matched to another layout");
   }
-  std::vector<int> vids;
-  std::vector<double> distances;
-  for (const MarkerLayout::Marker& m : initial.markers) {
-    vids.push_back(m.vertex_ids.at(0));
-    distances.push_back(m.distance_from_skin);
-  }
+  const auto [vids, distances] = MarkerVertices(initial);
   MarkerModel model(body, vids);
   LayoutFitResult result;
   result.fit = SolveStageI(
@@ -89,12 +84,7 @@ LayoutFitResult FitLayoutToFrame(const BodyModel& body,
                                       &result.normal_distances);
 
   // The layout as written: vertex + normal * per-type distance, re-posed.
-  std::vector<int> layout_vids;
-  std::vector<double> layout_distances;
-  for (const MarkerLayout::Marker& m : result.layout.markers) {
-    layout_vids.push_back(m.vertex_ids.at(0));
-    layout_distances.push_back(m.distance_from_skin);
-  }
+  const auto [layout_vids, layout_distances] = MarkerVertices(result.layout);
   MarkerModel layout_model(body, layout_vids);
   layout_model.SetShape(
       result.fit.betas,

@@ -50,6 +50,15 @@ Eigen::Matrix3d LeftJacobianSO3(const Eigen::Vector3d& w) {
   return Eigen::Matrix3d::Identity() + a * k + b * k * k;
 }
 
+LayoutMarkerVertices MarkerVertices(const MarkerLayout& layout) {
+  LayoutMarkerVertices out;
+  for (const MarkerLayout::Marker& m : layout.markers) {
+    out.vertex_ids.push_back(m.vertex_ids.at(0));
+    out.distances.push_back(m.distance_from_skin);
+  }
+  return out;
+}
+
 Eigen::Matrix3Xd NormalOffsets(const BodyModel& body,
                                const Eigen::VectorXd& betas,
                                const std::vector<int>& vertex_ids,

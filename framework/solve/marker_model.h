@@ -21,6 +21,7 @@
 #pragma once
 
 #include "framework/body/body_model.h"
+#include "framework/body/marker_layout.h"
 
 #include <Eigen/Core>
 
@@ -42,6 +43,14 @@ using RowMajorMatrix =
 
 /// Left Jacobian of SO(3) at axis-angle `w`: exp(w + d) ~ exp(J_l(w) d) exp(w).
 Eigen::Matrix3d LeftJacobianSO3(const Eigen::Vector3d& w);
+
+/// What the marker model needs of a layout: each marker's vertex (its first
+/// vertex id) and its distance from the skin, in layout order.
+struct LayoutMarkerVertices {
+  std::vector<int> vertex_ids;
+  std::vector<double> distances;
+};
+LayoutMarkerVertices MarkerVertices(const MarkerLayout& layout);
 
 /// Offsets n_m d_m along the rest normals of the shaped body (MoSh++'s
 /// initial latent markers v + n d), 3 x M.

@@ -60,12 +60,7 @@ TEST(LayoutFit, FitsARealCmuFrameAndWritesTheLayout) {
   EXPECT_EQ(MostCompleteFrame(markers), frame);
   // For comparison: the built-in layout as it is (mean shape, markers at
   // vertex + normal * distance), only the pose fitted (stage II).
-  std::vector<int> vids;
-  std::vector<double> dist;
-  for (const auto& m : initial.markers) {
-    vids.push_back(m.vertex_ids[0]);
-    dist.push_back(m.distance_from_skin);
-  }
+  const auto [vids, dist] = MarkerVertices(initial);
   MarkerModel fixed(body, vids);
   fixed.SetShape(
       Eigen::VectorXd::Zero(body.num_betas()),

@@ -19,12 +19,7 @@ using ::soma::testing::ProceduralBody;
 TEST(StageI, RecoversShapeAndMarkerPlacementFromSyntheticFrames) {
   const BodyModel& body = ProceduralBody();
   const MarkerLayout layout = MakeBuiltinLayout(body, "cmu41");
-  std::vector<int> vids;
-  std::vector<double> dist;
-  for (const auto& m : layout.markers) {
-    vids.push_back(m.vertex_ids[0]);
-    dist.push_back(m.distance_from_skin);
-  }
+  const auto [vids, dist] = MarkerVertices(layout);
   Rng rng(21);
   Eigen::VectorXd betas(body.num_betas());
   for (int b = 0; b < betas.size(); ++b) betas(b) = 1.0 * rng.Normal();

@@ -25,12 +25,7 @@ struct Synthetic {
 Synthetic MakeSynthetic(int num_frames, uint64_t seed) {
   const BodyModel& body = ProceduralBody();
   const MarkerLayout layout = MakeBuiltinLayout(body, "cmu41");
-  std::vector<int> vids;
-  std::vector<double> dist;
-  for (const auto& m : layout.markers) {
-    vids.push_back(m.vertex_ids[0]);
-    dist.push_back(m.distance_from_skin);
-  }
+  const auto [vids, dist] = MarkerVertices(layout);
   Rng rng(seed);
   Eigen::VectorXd betas(body.num_betas());
   for (int b = 0; b < betas.size(); ++b) betas(b) = 0.8 * rng.Normal();

@@ -46,11 +46,9 @@ struct Sequence {
 };
 
 void Layout(std::vector<int>* vids, std::vector<double>* dist) {
-  const MarkerLayout layout = MakeBuiltinLayout(Body(), "cmu41");
-  for (const auto& m : layout.markers) {
-    vids->push_back(m.vertex_ids[0]);
-    dist->push_back(m.distance_from_skin);
-  }
+  auto [ids, distances] = MarkerVertices(MakeBuiltinLayout(Body(), "cmu41"));
+  *vids = std::move(ids);
+  *dist = std::move(distances);
 }
 
 Sequence SyntheticSequence() {
