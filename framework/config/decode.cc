@@ -100,6 +100,7 @@ void ReadList(const ConfigNode* child, std::vector<T>* out, F&& convert) {
     out->clear();
     return;
   }
+  if (child->IsMissing()) child->AsString();  // MissingMandatoryValue: key
   if (!child->IsList()) {
     throw ConfigError(
         fmt::format("Invalid configuration. {} = {}. Expected a list{}",
@@ -115,6 +116,15 @@ void ReadList(const ConfigNode* child, std::vector<T>* out, F&& convert) {
 
 void ConfigReader::Read(std::string_view key, std::vector<std::string>* out) {
   ReadList(Get(key), out, [](const ConfigNode& n) { return n.AsString(); });
+}
+
+void ConfigReader::ReadOneOrMore(std::string_view key,
+                                 std::vector<std::string>* out) {
+  if (const ConfigNode* child = Get(key); child && child->IsString()) {
+    *out = {child->AsString()};
+    return;
+  }
+  Read(key, out);
 }
 
 void ConfigReader::Read(std::string_view key, std::vector<double>* out) {

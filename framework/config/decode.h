@@ -41,6 +41,13 @@ class ConfigReader {
   void Read(std::string_view key, std::vector<std::string>* out);
   void Read(std::string_view key, std::vector<double>* out);
   void Read(std::string_view key, std::vector<int>* out);
+  /// One string or a list of strings (e.g. one checkpoint or several); a
+  /// single string is read as a one-element list.
+  void ReadOneOrMore(std::string_view key, std::vector<std::string>* out);
+  void RequireOneOrMore(std::string_view key, std::vector<std::string>* out) {
+    RequireKey(key);
+    ReadOneOrMore(key, out);
+  }
 
   /// Like Read but the key must exist.
   template <typename T>

@@ -345,12 +345,7 @@ void RegisterAttentionSpanTask(Registry<Task>& registry) {
       "attention_span", [](const ConfigNode& node, BuildContext&) {
         ConfigReader reader(node);
         AttentionSpanOptions o;
-        if (const ConfigNode* c = node.Find("checkpoints");
-            c && (c->IsString() || c->IsMissing())) {
-          reader.Require("checkpoints", &o.checkpoints.emplace_back());
-        } else {
-          reader.Require("checkpoints", &o.checkpoints);
-        }
+        reader.RequireOneOrMore("checkpoints", &o.checkpoints);
         reader.Require("input", &o.input);
         reader.Read("max_frames", &o.max_frames);
         reader.Read("seed", &o.seed);

@@ -384,13 +384,7 @@ void RegisterEvalTask(Registry<Task>& registry) {
       return true;
     };
     if (given("gt")) reader.Read("gt", &options.gt);
-    if (given("rec")) {
-      if (node.at("rec").IsString()) {
-        reader.Read("rec", &options.rec.emplace_back());
-      } else {
-        reader.Read("rec", &options.rec);
-      }
-    }
+    if (given("rec")) reader.ReadOneOrMore("rec", &options.rec);
     if (given("body_fit_gt")) reader.Read("body_fit_gt", &options.body_fit_gt);
     if (given("body_fit_rec")) {
       reader.Read("body_fit_rec", &options.body_fit_rec);

@@ -136,12 +136,7 @@ void RegisterNoiseBankTask(Registry<Task>& registry) {
   registry.Register("noise_bank", [](const ConfigNode& node, BuildContext&) {
     ConfigReader reader(node);
     NoiseBankOptions o;
-    if (const ConfigNode* f = node.Find("fits");
-        f && (f->IsString() || f->IsMissing())) {
-      reader.Require("fits", &o.fits.emplace_back());
-    } else {
-      reader.Require("fits", &o.fits);
-    }
+    reader.RequireOneOrMore("fits", &o.fits);
     reader.Read("output", &o.output);
     reader.Check("fits", !o.fits.empty(), "one or more `soma solve` outputs");
     reader.Finish();
