@@ -3,7 +3,12 @@
 # shared C3D files (first 64 KiB of each) and the regression inputs in
 # tests/fuzz/corpus/. The growing corpus is kept in build-fuzz/c3d_corpus.
 #
-#   scripts/fuzz_c3d.sh [seconds=60]
+#   scripts/fuzz_c3d.sh [seconds=60] [seed]
+#
+# Without a seed libFuzzer picks one (an exploratory session: run it long).
+# The test suite passes a fixed seed, so its short run explores the same
+# inputs every time and a new finding means a change, not luck; a finding of
+# an exploratory session is fixed and its input added to tests/fuzz/corpus/.
 #
 # Exit 0: no finding, or clang/libFuzzer unavailable (skipped with a message).
 # Exit 1: a crash, leak, timeout or sanitizer report; the input is saved in
@@ -12,6 +17,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 seconds="${1:-60}"
+seed_flag=()
+if [[ -n "${2:-}" ]]; then
+  seed_flag=(-seed="$2")
+fi
 build="${SOMA_FUZZ_BUILD_DIR:-build-fuzz}"
 
 if ! command -v clang >/dev/null 2>&1 || ! command -v clang++ >/dev/null 2>&1; then
@@ -49,8 +58,8 @@ if compgen -G "tests/fuzz/corpus/*" >/dev/null; then
   cp tests/fuzz/corpus/* "$seeds/"
 fi
 
-echo "[fuzz_c3d] fuzzing ParseC3d for ${seconds}s"
-if ! "$build/tests/fuzz/c3d_fuzzer" -max_total_time="$seconds" -max_len=65536 \
+echo "[fuzz_c3d] fuzzing ParseC3d for ${seconds}s${2:+ (seed $2)}"
+if ! "$build/tests/fuzz/c3d_fuzzer" "${seed_flag[@]}" -max_total_time="$seconds" -max_len=65536 \
   -rss_limit_mb=2048 -timeout=10 -dict=tests/fuzz/c3d.dict \
   -artifact_prefix="$artifacts" -print_final_stats=1 "$corpus" "$seeds" \
   >"$build/c3d_fuzz.log" 2>&1; then

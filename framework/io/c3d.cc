@@ -552,7 +552,8 @@ void DecodePoints(const uint8_t* data,
         z = static_cast<float>(CodecT::I16(in + 4)) * scale;
         const int16_t w = CodecT::I16(in + 6);
         in += 8;
-        ok = w >= 0;
+        // A huge POINT:SCALE overflows the product to inf: not a point.
+        ok = w >= 0 && std::isfinite(x) && std::isfinite(y) && std::isfinite(z);
         r = ok ? static_cast<float>(w & 0xff) * abs_scale : -1.0f;
       }
       if (ok) {

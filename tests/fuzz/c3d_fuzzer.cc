@@ -11,37 +11,43 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <span>
 #include <vector>
 
 namespace {
 
-// A broken invariant is a finding: abort so libFuzzer saves the input.
-void Require(bool condition) {
-  if (!condition) std::abort();
+// A broken invariant is a finding: name it, then abort so libFuzzer saves
+// the input.
+void Fail(const char* condition, int line) {
+  std::fprintf(
+      stderr, "c3d_fuzzer.cc:%d: invariant broken: %s\n", line, condition);
+  std::abort();
 }
+#define REQUIRE(condition) \
+  ((condition) ? static_cast<void>(0) : Fail(#condition, __LINE__))
 
 bool SameFloat(float a, float b) {
   return a == b || (std::isnan(a) && std::isnan(b));
 }
 
 void CheckInvariants(const soma::C3dData& d) {
-  Require(d.num_frames >= 0 && d.num_points >= 0);
-  Require(d.points.rows() == d.num_frames);
-  Require(d.points.cols() == 3 * static_cast<Eigen::Index>(d.num_points));
-  Require(d.residuals.rows() == d.num_frames);
-  Require(d.residuals.cols() == d.num_points);
-  Require(d.valid.rows() == d.num_frames && d.valid.cols() == d.num_points);
-  Require(d.labels.size() == static_cast<size_t>(d.num_points));
-  Require(d.descriptions.size() == static_cast<size_t>(d.num_points));
+  REQUIRE(d.num_frames >= 0 && d.num_points >= 0);
+  REQUIRE(d.points.rows() == d.num_frames);
+  REQUIRE(d.points.cols() == 3 * static_cast<Eigen::Index>(d.num_points));
+  REQUIRE(d.residuals.rows() == d.num_frames);
+  REQUIRE(d.residuals.cols() == d.num_points);
+  REQUIRE(d.valid.rows() == d.num_frames && d.valid.cols() == d.num_points);
+  REQUIRE(d.labels.size() == static_cast<size_t>(d.num_points));
+  REQUIRE(d.descriptions.size() == static_cast<size_t>(d.num_points));
   for (Eigen::Index f = 0; f < d.points.rows(); ++f) {
     for (Eigen::Index p = 0; p < d.residuals.cols(); ++p) {
       if (d.valid(f, p)) {
-        Require(d.residuals(f, p) >= 0.0f);
-        Require(d.Point(f, p).allFinite());
+        REQUIRE(d.residuals(f, p) >= 0.0f);
+        REQUIRE(d.Point(f, p).allFinite());
       } else {
-        Require(d.residuals(f, p) == -1.0f);
+        REQUIRE(d.residuals(f, p) == -1.0f);
       }
     }
   }
@@ -55,11 +61,11 @@ void CheckRoundTrip(const soma::C3dData& d) {
     return;  // e.g. a zero frame rate cannot be written: not a reader bug
   }
   const soma::C3dData r = soma::ParseC3d(encoded, "roundtrip");  // must work
-  Require(r.num_frames == d.num_frames && r.num_points == d.num_points);
-  Require(r.labels == d.labels);
-  Require((r.valid == d.valid).all());
+  REQUIRE(r.num_frames == d.num_frames && r.num_points == d.num_points);
+  REQUIRE(r.labels == d.labels);
+  REQUIRE((r.valid == d.valid).all());
   for (Eigen::Index i = 0; i < d.points.size(); ++i) {
-    Require(SameFloat(r.points.data()[i], d.points.data()[i]));
+    REQUIRE(SameFloat(r.points.data()[i], d.points.data()[i]));
   }
 }
 

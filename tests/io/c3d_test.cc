@@ -850,6 +850,19 @@ TEST(C3dBadInput, ZeroScale) {
   EXPECT_EQ(ParseC3d(bytes, "ok").point_scale, -0.1f);
 }
 
+TEST(C3dBadInput, ScaleThatOverflowsMakesPointsInvalid) {
+  C3dData d = MakeSynthetic(2, 2);
+  d.point_scale = 0.1f;  // int16 data
+  std::vector<uint8_t> bytes = EncodeC3d(d);
+  const float huge = 3e38f;  // int16 * huge = inf (found by the fuzzer)
+  std::memcpy(bytes.data() + 12, &huge, 4);
+  const C3dData r = ParseC3d(bytes, "huge_scale");
+  EXPECT_EQ(r.point_scale, huge);
+  EXPECT_FALSE(r.valid.any());
+  EXPECT_TRUE(r.points.array().isNaN().all());
+  EXPECT_TRUE((r.residuals.array() == -1.0f).all());
+}
+
 TEST(C3dBadInput, OddLabelBytesAreKept) {
   C3dData d = MakeSynthetic(1, 3);
   d.labels[0] = "\xff\xfe\x80X";
