@@ -99,27 +99,53 @@ std::unique_ptr<BodySource> MakeSmplSource(const ConfigNode& node) {
   return std::make_unique<SmplBodySource>(path, options);
 }
 
+constexpr std::string_view kExcludeKey = "layout.exclude";
+
+/// The canonical labels of `labels` that `exclude` keeps, in order.
+std::vector<std::string> KeptCanonicalLabels(
+    const std::vector<std::string>& labels,
+    const std::vector<std::string>& exclude) {
+  std::vector<std::string> kept;
+  for (int i : KeptLabelPositions(labels, exclude, kExcludeKey)) {
+    kept.push_back(CanonicalMarkerLabel(labels[i]));
+  }
+  return kept;
+}
+
 class BuiltinLayoutSource : public LayoutSource {
  public:
-  explicit BuiltinLayoutSource(std::string layout)
-      : layout_(std::move(layout)) {}
+  BuiltinLayoutSource(std::string layout, std::vector<std::string> exclude)
+      : layout_(std::move(layout)), exclude_(std::move(exclude)) {}
   MarkerLayout Build(const BodyModel& body) const override {
-    return MakeBuiltinLayout(body, layout_);
+    return ExcludeMarkers(
+        MakeBuiltinLayout(body, layout_), exclude_, kExcludeKey);
+  }
+  std::vector<std::string> Labels() const override {
+    return KeptCanonicalLabels(BuiltinLayoutLabels(layout_), exclude_);
   }
 
  private:
   std::string layout_;
+  std::vector<std::string> exclude_;
 };
 
 class FileLayoutSource : public LayoutSource {
  public:
-  explicit FileLayoutSource(std::string path) : path_(std::move(path)) {}
+  FileLayoutSource(std::string path, std::vector<std::string> exclude)
+      : path_(std::move(path)), exclude_(std::move(exclude)) {}
   MarkerLayout Build(const BodyModel& body) const override {
-    return LoadMarkerLayoutForBody(path_, body);
+    return ExcludeMarkers(
+        LoadMarkerLayoutForBody(path_, body), exclude_, kExcludeKey);
+  }
+  std::vector<std::string> Labels() const override {
+    MarkerLayout file = CanonicalizeLayout(ReadMarkerLayout(path_));
+    file.Sort();
+    return KeptCanonicalLabels(file.Labels(), exclude_);
   }
 
  private:
   std::string path_;
+  std::vector<std::string> exclude_;
 };
 
 }  // namespace
@@ -147,15 +173,21 @@ void RegisterBodySources() {
     reader.Check("layout",
                  std::find(names.begin(), names.end(), layout) != names.end(),
                  fmt::format("one of {}", fmt::join(names, ", ")));
+    std::vector<std::string> exclude;
+    reader.Read("exclude", &exclude);
     reader.Finish();
-    return std::make_unique<BuiltinLayoutSource>(layout);
+    auto source = std::make_unique<BuiltinLayoutSource>(layout, exclude);
+    (void)source->Labels();  // an unknown excluded label fails here
+    return source;
   });
   layouts.Register("file", [](const ConfigNode& node, BuildContext&) {
     ConfigReader reader(node);
     std::string path;
     reader.Require("path", &path);
+    std::vector<std::string> exclude;
+    reader.Read("exclude", &exclude);
     reader.Finish();
-    return std::make_unique<FileLayoutSource>(path);
+    return std::make_unique<FileLayoutSource>(path, exclude);
   });
   RegisterConfigGroup<LayoutSource>("layout");
 }

@@ -1014,6 +1014,49 @@ double BuiltinDistanceFromSkin(std::string_view type) {
                                   : kDefaultDistanceFromSkin;
 }
 
+std::vector<int> KeptLabelPositions(const std::vector<std::string>& labels,
+                                    const std::vector<std::string>& exclude,
+                                    std::string_view key) {
+  std::vector<std::string> canonical;
+  canonical.reserve(labels.size());
+  for (const std::string& l : labels) {
+    canonical.push_back(CanonicalMarkerLabel(l));
+  }
+  std::vector<bool> excluded(labels.size(), false);
+  for (const std::string& name : exclude) {
+    const auto it = std::find(
+        canonical.begin(), canonical.end(), CanonicalMarkerLabel(name));
+    if (it == canonical.end()) {
+      throw ConfigError(fmt::format(
+          "Invalid configuration. {}: '{}' is not a label of the layout ({})",
+          key,
+          name,
+          fmt::join(labels, " ")));
+    }
+    excluded[it - canonical.begin()] = true;
+  }
+  std::vector<int> kept;
+  for (size_t i = 0; i < labels.size(); ++i) {
+    if (!excluded[i]) kept.push_back(static_cast<int>(i));
+  }
+  if (kept.empty()) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. {} removes every label of the layout", key));
+  }
+  return kept;
+}
+
+MarkerLayout ExcludeMarkers(const MarkerLayout& layout,
+                            const std::vector<std::string>& exclude,
+                            std::string_view key) {
+  MarkerLayout out = layout;
+  out.markers.clear();
+  for (int i : KeptLabelPositions(layout.Labels(), exclude, key)) {
+    out.markers.push_back(layout.markers[i]);
+  }
+  return out;
+}
+
 MarkerLayout MakeBuiltinLayout(const BodyModel& body, std::string_view name) {
   const std::vector<std::string>& labels = BuiltinLayoutLabels(name);
   if (body.num_joints() < kNumCoreJoints) {

@@ -210,6 +210,20 @@ double BuiltinDistanceFromSkin(std::string_view type);
 /// merge (MergeLayouts) without distance conflicts.
 MarkerLayout MakeBuiltinLayout(const BodyModel& body, std::string_view name);
 
+/// Removes markers from a layout (`layout.exclude`, e.g. a subset layout for
+/// SOMA's Table 4). Names are compared through CanonicalMarkerLabel, so
+/// RBAK excludes RBAC. Returns the positions in `labels` that are kept, in
+/// order. Throws ConfigError naming `key` for a name that matches no label,
+/// or if nothing would be left.
+std::vector<int> KeptLabelPositions(const std::vector<std::string>& labels,
+                                    const std::vector<std::string>& exclude,
+                                    std::string_view key);
+
+/// `layout` without the markers `exclude` names (KeptLabelPositions).
+MarkerLayout ExcludeMarkers(const MarkerLayout& layout,
+                            const std::vector<std::string>& exclude,
+                            std::string_view key);
+
 /// The skin vertex where the ray origin + t * dir (t > 0) leaves the mesh:
 /// the nearest hit on an exit face (outward normal along `dir`), so inner
 /// surfaces facing the origin (mouth or eye cavities, double layers) are

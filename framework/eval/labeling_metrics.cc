@@ -87,6 +87,29 @@ std::vector<LabelPair> MatchFrameLabels(
   return pairs;
 }
 
+std::set<std::string> UnknownGroundTruthLabels(
+    const std::vector<LabelPair>& pairs, const std::set<std::string>& known) {
+  std::set<std::string> unknown;
+  for (const LabelPair& pair : pairs) {
+    if (pair.gt != kNullLabel && known.count(pair.gt) == 0) {
+      unknown.insert(pair.gt);
+    }
+  }
+  return unknown;
+}
+
+int64_t ScoreLabelsAsNull(const std::set<std::string>& labels,
+                          std::vector<LabelPair>* pairs) {
+  int64_t changed = 0;
+  for (LabelPair& pair : *pairs) {
+    if (labels.count(pair.gt) > 0 && pair.gt != kNullLabel) {
+      pair.gt = std::string(kNullLabel);
+      ++changed;
+    }
+  }
+  return changed;
+}
+
 LabelingMetrics ComputeLabelingMetrics(const std::vector<LabelPair>& pairs) {
   if (pairs.empty()) {
     throw ShapeError("labelling metrics of an empty set of point pairs");

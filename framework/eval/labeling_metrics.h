@@ -23,6 +23,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <set>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -54,6 +55,17 @@ std::vector<LabelPair> MatchFrameLabels(
     const Eigen::Matrix3Xd& rec_points,
     const std::vector<std::string>& rec_labels,
     const MatchTolerance& tolerance = {});
+
+/// The ground-truth labels of `pairs` that are not null and not in `known`
+/// (the labels a labeller can output), sorted.
+std::set<std::string> UnknownGroundTruthLabels(
+    const std::vector<LabelPair>& pairs, const std::set<std::string>& known);
+
+/// Scores the ground-truth labels in `labels` as null: a model trained on a
+/// subset layout should reject the other markers of a superset capture as
+/// ghosts (SOMA Table 4, "Base MoCap"). Returns the pairs changed.
+int64_t ScoreLabelsAsNull(const std::set<std::string>& labels,
+                          std::vector<LabelPair>* pairs);
 
 /// Precision, recall, F1 and support of one class.
 struct ClassReport {

@@ -82,6 +82,8 @@ AblationTest ParseTest(const std::string& name, const ConfigNode& node) {
   reader.Require("take", &t.take);
   reader.Require("setting", &t.setting);
   reader.Read("tracklet", &t.tracklet);
+  reader.Read("corrupt_overrides", &t.corrupt_overrides);
+  reader.Read("eval_overrides", &t.eval_overrides);
   reader.Finish();
   return t;
 }

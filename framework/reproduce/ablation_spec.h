@@ -47,6 +47,12 @@ struct AblationTest {
   std::string take;     // a C3D file, relative to the data dir
   std::string setting;  // `soma corrupt` setting, e.g. OC_05_G_03_BT_00
   bool tracklet = false;
+  /// Extra overrides of the `soma corrupt` command, e.g.
+  /// `layout.exclude=[RBAC,LSHN,RSHN]` (markers removed from the take).
+  std::vector<std::string> corrupt_overrides;
+  /// Extra overrides of each `soma eval` command, e.g.
+  /// `task.unknown_gt_labels=ghost`.
+  std::vector<std::string> eval_overrides;
 };
 
 /// "`better` beats `worse` on `test`/`metric`" (kind greater), or "`better`

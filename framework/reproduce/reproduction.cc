@@ -10,6 +10,7 @@
 #include "framework/core/random.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <deque>
@@ -47,13 +48,20 @@ std::string Mode(const AblationTest& test) {
   return test.tracklet ? "tracklet" : "perframe";
 }
 
+/// "" or "_<hash of the overrides>": tells apart the directories of tests
+/// that differ only in extra overrides.
+std::string OverridesSuffix(const std::vector<std::string>& overrides) {
+  return overrides.empty() ? std::string() : "_" + Hash8(overrides);
+}
+
 fs::path CorruptDir(const AblationTest& test,
                     const ReproductionOptions& options) {
   return options.root / "testdata" /
-         fmt::format("{}_{}_seed{}",
+         fmt::format("{}_{}_seed{}{}",
                      fs::path(test.take).stem().string(),
                      test.setting,
-                     options.test_seed);
+                     options.test_seed,
+                     OverridesSuffix(test.corrupt_overrides));
 }
 
 std::string RunDirArg(const fs::path& dir) {
@@ -128,6 +136,13 @@ std::map<std::string, double> ModelMetrics(const PlannedModel& model) {
   return out;
 }
 
+/// The model's variant is one `options.only_variants` selects.
+bool Selected(const PlannedModel& model, const ReproductionOptions& options) {
+  const auto& only = options.only_variants;
+  return only.empty() ||
+         std::find(only.begin(), only.end(), model.variant) != only.end();
+}
+
 }  // namespace
 
 bool PlannedCommand::Done() const { return RunDirDone(run_dir); }
@@ -157,8 +172,11 @@ ReproductionPlan PlanReproduction(const AblationSpec& spec,
         "corrupt",
         fmt::format("task.files=[{}]", (options.data_dir / test.take).string()),
         fmt::format("task.settings=[{}]", test.setting),
-        fmt::format("seed={}", options.test_seed),
-        RunDirArg(dir)};
+        fmt::format("seed={}", options.test_seed)};
+    command.argv.insert(command.argv.end(),
+                        test.corrupt_overrides.begin(),
+                        test.corrupt_overrides.end());
+    command.argv.push_back(RunDirArg(dir));
     plan.corrupt.push_back(command);
   }
 
@@ -194,12 +212,17 @@ ReproductionPlan PlanReproduction(const AblationSpec& spec,
       const fs::path checkpoint = model.dir / "checkpoints" / "best.pt";
       for (const AblationTest& test : spec.tests) {
         const std::string stem = fs::path(test.take).stem().string();
+        std::vector<std::string> test_overrides = test.corrupt_overrides;
+        test_overrides.insert(test_overrides.end(),
+                              test.eval_overrides.begin(),
+                              test.eval_overrides.end());
         const fs::path test_dir = model.dir / "tests" /
-                                  fmt::format("{}_{}_{}_seed{}",
+                                  fmt::format("{}_{}_{}_seed{}{}",
                                               stem,
                                               test.setting,
                                               Mode(test),
-                                              options.test_seed);
+                                              options.test_seed,
+                                              OverridesSuffix(test_overrides));
         const fs::path corrupted = CorruptDir(test, options) / test.setting;
         PlannedCommand label;
         label.name = fmt::format(
@@ -221,8 +244,11 @@ ReproductionPlan PlanReproduction(const AblationSpec& spec,
             exe,
             "eval",
             "task.gt=" + (corrupted / (stem + ".h5")).string(),
-            "task.rec=" + (label.run_dir / (stem + "_labeled.c3d")).string(),
-            RunDirArg(eval.run_dir)};
+            "task.rec=" + (label.run_dir / (stem + "_labeled.c3d")).string()};
+        eval.argv.insert(eval.argv.end(),
+                         test.eval_overrides.begin(),
+                         test.eval_overrides.end());
+        eval.argv.push_back(RunDirArg(eval.run_dir));
         model.commands.push_back(label);
         model.commands.push_back(eval);
         model.eval_dirs[test.name] = eval.run_dir;
@@ -312,10 +338,17 @@ ReproductionRun RunReproduction(
       ++run.models_done;
     } else {
       entry.status = JobStatus::kPending;
-      queue.push_back(i);
+      if (Selected(m, options)) queue.push_back(i);
     }
   }
   ledger.Save();
+  if (!options.only_variants.empty()) {
+    SOMA_LOG(INFO,
+             "reproduce: only variants {}: {} unfinished models run now, the "
+             "others stay pending",
+             fmt::join(options.only_variants, ", "),
+             queue.size());
+  }
 
   ProcessPool pool(options.jobs);
   std::map<int64_t, Slot> running;  // process id -> slot

@@ -40,6 +40,9 @@ struct ReproductionOptions {
   int seeds = 0;           // 0: the spec's number of seeds
   int jobs = 2;            // models trained/evaluated at the same time
   uint64_t test_seed = 0;  // seed of the corruption and of inference
+  /// Non-empty: RunReproduction runs only these variants' models (e.g. the
+  /// rows that need no training first); the others stay pending.
+  std::vector<std::string> only_variants;
   /// The `soma` executable the commands run.
   std::filesystem::path executable;
 };

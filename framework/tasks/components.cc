@@ -49,6 +49,11 @@ MarkerLayout BuildLayout(const ConfigNode& cfg,
   return layout;
 }
 
+std::vector<std::string> BuildLayoutLabels(const ConfigNode& cfg,
+                                           BuildContext& ctx) {
+  return Instantiate<LayoutSource>(Require(cfg, "layout"), ctx)->Labels();
+}
+
 std::unique_ptr<MotionSource> BuildMotionSource(const ConfigNode& cfg,
                                                 BuildContext& ctx) {
   return Instantiate<MotionSource>(Require(cfg, "motion"), ctx);

@@ -11,6 +11,8 @@
 #include "framework/synth/synthesizer.h"
 
 #include <memory>
+#include <string>
+#include <vector>
 
 namespace soma {
 
@@ -20,6 +22,10 @@ BodyModel BuildBody(const ConfigNode& cfg, BuildContext& ctx);
 MarkerLayout BuildLayout(const ConfigNode& cfg,
                          const BodyModel& body,
                          BuildContext& ctx);
+/// The canonical labels of `cfg.layout` in label-id order, without a body
+/// (LayoutSource::Labels).
+std::vector<std::string> BuildLayoutLabels(const ConfigNode& cfg,
+                                           BuildContext& ctx);
 /// `cfg.motion`.
 std::unique_ptr<MotionSource> BuildMotionSource(const ConfigNode& cfg,
                                                 BuildContext& ctx);

@@ -4,13 +4,13 @@
 // `<setting>/<take>.h5` (the per-frame ground truth, a soma dataset; see
 // docs/dataset_format.md) under the run directory, plus `corrupt.csv` with
 // one line of statistics per written set.
-#include "framework/body/marker_layout.h"
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
 #include "framework/registry/registry.h"
 #include "framework/synth/corruption.h"
+#include "framework/tasks/components.h"
 #include "framework/tasks/task.h"
 
 #include <fmt/format.h>
@@ -39,36 +39,15 @@ CorruptOptions DecodeCorruptOptions(const ConfigNode& node) {
   return options;
 }
 
-/// The canonical label names (id order) of `cfg.layout`: a built-in layout
-/// by name, or a layout JSON file. No body is needed: only the labels are.
-std::vector<std::string> LayoutLabels(const ConfigNode& cfg) {
-  const ConfigNode* layout = cfg.Find("layout");
-  if (layout == nullptr || !layout->Has("name")) {
-    throw ConfigError(
-        "Invalid configuration. layout is missing (select layout=cmu41 or "
-        "layout=file layout.path=...)");
-  }
-  const std::string& name = layout->at("name").AsString();
-  if (name == "builtin")
-    return BuiltinLayoutLabels(layout->at("layout").AsString());
-  if (name == "file") {
-    MarkerLayout file =
-        CanonicalizeLayout(ReadMarkerLayout(layout->at("path").AsString()));
-    file.Sort();
-    return file.Labels();
-  }
-  throw ConfigError(fmt::format(
-      "Invalid configuration. layout.name = {}. Violated constraint: builtin "
-      "or file (corrupt task)",
-      name));
-}
-
 class CorruptTask : public Task {
  public:
   explicit CorruptTask(CorruptOptions options) : options_(std::move(options)) {}
 
   void Run(const ConfigNode& cfg, RunContext& ctx) override {
-    const std::vector<std::string> labels = LayoutLabels(cfg);
+    // Only the labels are needed, not a body: a take is restricted to them
+    // (`layout.exclude` removes markers, e.g. for SOMA's Table 4).
+    BuildContext build(ctx.seed, ctx.output_dir.string());
+    const std::vector<std::string> labels = BuildLayoutLabels(cfg, build);
     std::ostringstream csv;
     csv << "setting,take,frames,columns,missing_before,missing_after,"
            "ghosts_per_frame,cuts\n";

@@ -11,6 +11,10 @@
 // Points are compared by exact coordinates, so both must come from the same
 // capture. With several outputs (e.g. models trained with different seeds)
 // every output is scored and the mean +- std over outputs is reported too.
+// Ground-truth labels an output cannot hold (not among its labelled columns,
+// e.g. a model trained with `layout.exclude`) count as errors, or with
+// `task.unknown_gt_labels=ghost` as null; `unknown_gt_labels` (a metric)
+// counts them.
 //
 // Body-fit metrics (issue #8 item 6; framework/eval/body_metrics.h): given
 // two `soma solve` outputs of the same capture, the fit from ground-truth
@@ -42,10 +46,12 @@
 #include "framework/tasks/task.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
+#include <set>
 #include <sstream>
 
 namespace soma {
@@ -150,6 +156,11 @@ struct EvalOptions {
   std::string gt;  // empty: no labelling evaluation
   std::vector<std::string> rec;
   double tolerance = 1e-8;
+  /// Ground-truth labels the labeller cannot output (not among the labelled
+  /// columns of its output): "wrong" counts them as errors (a warning names
+  /// them), "ghost" scores them as null (a subset-layout model on a
+  /// superset capture, SOMA Table 4).
+  std::string unknown_gt_labels = "wrong";
   std::string body_fit_gt;  // empty: no body-fit metrics
   std::string body_fit_rec;
   BodyMetricsOptions body;
@@ -192,15 +203,27 @@ class EvalTask : public Task {
                         options_.gt,
                         gt.frames.size()));
       }
+      // The labels this labeller can output: its labelled columns.
+      std::set<std::string> known(rec.column_labels.begin(),
+                                  rec.column_labels.end());
+      known.erase(std::string(kNullLabel));
+      std::set<std::string> unknown;
+      int64_t scored_as_null = 0;
       LabelingEvaluator evaluator;
       ProgressBar bar(static_cast<int64_t>(gt.frames.size()),
                       {.label = "eval", .unit = "frames"});
       for (size_t t = 0; t < gt.frames.size(); ++t) {
-        const auto pairs = MatchFrameLabels(gt.frames[t],
-                                            gt.LabelsAt(t),
-                                            rec.frames[t],
-                                            rec.LabelsAt(t),
-                                            tolerance);
+        auto pairs = MatchFrameLabels(gt.frames[t],
+                                      gt.LabelsAt(t),
+                                      rec.frames[t],
+                                      rec.LabelsAt(t),
+                                      tolerance);
+        const std::set<std::string> frame_unknown =
+            UnknownGroundTruthLabels(pairs, known);
+        unknown.insert(frame_unknown.begin(), frame_unknown.end());
+        if (options_.unknown_gt_labels == "ghost") {
+          scored_as_null += ScoreLabelsAsNull(frame_unknown, &pairs);
+        }
         if (!pairs.empty()) {
           const LabelingMetrics m = ComputeLabelingMetrics(pairs);
           per_frame << fmt::format("{},{},{},{:.6f},{:.6f},{:.6f},{:.6f}\n",
@@ -216,6 +239,25 @@ class EvalTask : public Task {
         bar.Update();
       }
       bar.Finish();
+      if (!unknown.empty() && options_.unknown_gt_labels == "ghost") {
+        SOMA_LOG(INFO,
+                 "eval: {} points labelled {} in the ground truth, which {} "
+                 "cannot output, scored as null (task.unknown_gt_labels=ghost)",
+                 scored_as_null,
+                 fmt::join(unknown, " "),
+                 options_.rec[r]);
+      } else if (!unknown.empty()) {
+        SOMA_LOG(WARNING,
+                 "eval: the ground truth has labels {} that {} cannot output; "
+                 "they count as errors (task.unknown_gt_labels=ghost scores "
+                 "them as null)",
+                 fmt::join(unknown, " "),
+                 options_.rec[r]);
+      }
+      if (r == 0) {  // the first output's numbers are the job's metrics
+        ctx.ReportMetric("unknown_gt_labels",
+                         static_cast<double>(unknown.size()));
+      }
       results.push_back(evaluator.Finish());
       all_pairs.insert(all_pairs.end(),
                        evaluator.pooled_pairs().begin(),
@@ -397,6 +439,11 @@ void RegisterEvalTask(Registry<Task>& registry) {
           node.path().empty() ? "task" : node.path()));
     }
     reader.Read("tolerance", &options.tolerance);
+    reader.Read("unknown_gt_labels", &options.unknown_gt_labels);
+    reader.Check("unknown_gt_labels",
+                 options.unknown_gt_labels == "wrong" ||
+                     options.unknown_gt_labels == "ghost",
+                 "wrong or ghost");
     reader.Read("pck_thresholds_mm", &options.body.pck_thresholds_mm);
     reader.Check("rec",
                  options.labelling() == !options.rec.empty(),

@@ -19,6 +19,7 @@
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
+#include <algorithm>
 #include <thread>
 
 namespace soma {
@@ -52,6 +53,17 @@ class ReproduceTask : public Task {
         LoadAblationSpec(options_.ablation, LocateDir(options_.ablations_dir));
     ReproductionOptions reproduction = options_.reproduction;
     reproduction.executable = CurrentExecutable();
+    for (const std::string& v : reproduction.only_variants) {
+      if (std::none_of(spec.variants.begin(),
+                       spec.variants.end(),
+                       [&](const AblationVariant& a) { return a.name == v; })) {
+        throw ConfigError(fmt::format(
+            "Invalid configuration. task.variants: '{}' is not a variant of "
+            "{}",
+            v,
+            spec.name));
+      }
+    }
     const ReproductionPlan plan = PlanReproduction(spec, reproduction);
     WriteCommandsScript(plan, fs::current_path());
     SOMA_LOG(INFO,
@@ -116,7 +128,11 @@ class ReproduceTask : public Task {
       if (o == "task.ablation=" + options_.ablation) continue;
       // Where the log went and whether this call only rebuilt the table do
       // not change the numbers: the command shown is the one that makes them.
-      if (o.rfind("hydra.", 0) == 0 || o.rfind("task.mode=", 0) == 0) continue;
+      // Nor does which rows this call ran (task.variants).
+      if (o.rfind("hydra.", 0) == 0 || o.rfind("task.mode=", 0) == 0 ||
+          o.rfind("task.variants=", 0) == 0) {
+        continue;
+      }
       args.push_back(o);
     }
     context.command = fmt::format("soma reproduce {}{}{}",
@@ -168,6 +184,10 @@ void RegisterReproduceTask(Registry<Task>& registry) {
     reader.Read("jobs", &o.reproduction.jobs);
     reader.Check("jobs", o.reproduction.jobs >= 1, "jobs >= 1");
     reader.Read("test_seed", &o.reproduction.test_seed);
+    if (const ConfigNode* only = reader.Child("variants");
+        only != nullptr && !only->IsNull()) {
+      reader.ReadOneOrMore("variants", &o.reproduction.only_variants);
+    }
     reader.Finish();
     return std::make_unique<ReproduceTask>(std::move(o));
   });

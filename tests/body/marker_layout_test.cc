@@ -206,6 +206,31 @@ TEST(MarkerLayout, CanonicalizeMergesAliasesOfTheSameMarker) {
   EXPECT_EQ(canonical.markers[1].vertex_ids, (std::vector<int>{1, 2}));
 }
 
+TEST(MarkerLayout, ExcludeRemovesMarkersByCanonicalName) {
+  const MarkerLayout cmu = MakeBuiltinLayout(ProceduralBody(), "cmu41");
+  // RBAK is the Plug-in Gait name of RBAC; names are case-insensitive.
+  const MarkerLayout subset =
+      ExcludeMarkers(cmu, {"RBAK", "lshn"}, "layout.exclude");
+  EXPECT_EQ(subset.num_markers(), 39);
+  EXPECT_EQ(subset.FindLabel("RBAC"), -1);
+  EXPECT_EQ(subset.FindLabel("LSHN"), -1);
+  EXPECT_EQ(subset.markers[subset.FindLabel("RSHN")],
+            cmu.markers[cmu.FindLabel("RSHN")]);
+  EXPECT_EQ(subset.surface_model_type, cmu.surface_model_type);
+  EXPECT_EQ(ExcludeMarkers(cmu, {}, "layout.exclude"), cmu);
+
+  const std::vector<std::string> labels = {"C7", "LFHD", "RBAC"};
+  EXPECT_EQ(KeptLabelPositions(labels, {"LFHD"}, "k"),
+            (std::vector<int>{0, 2}));
+  EXPECT_EQ(MessageOf([&] { KeptLabelPositions(labels, {"T10"}, "k.ex"); }),
+            "Invalid configuration. k.ex: 'T10' is not a label of the layout "
+            "(C7 LFHD RBAC)");
+  EXPECT_EQ(MessageOf([&] {
+              KeptLabelPositions(labels, {"C7", "LFHD", "RBAK"}, "k.ex");
+            }),
+            "Invalid configuration. k.ex removes every label of the layout");
+}
+
 TEST(MarkerLayout, MergeBuildsTheSuperset) {
   const BodyModel& body = ProceduralBody();
   const MarkerLayout cmu = MakeBuiltinLayout(body, "cmu41");

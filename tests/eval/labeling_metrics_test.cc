@@ -52,6 +52,21 @@ TEST(LabelingMetrics, LabelPredictedButAbsentFromGroundTruthScoresZero) {
   EXPECT_NEAR(m.precision, 1.0 / 3.0, 1e-12);
 }
 
+TEST(LabelingMetrics, UnknownGroundTruthLabelsCanBeScoredAsNull) {
+  // A labeller that knows A and B; C is a marker it was trained without.
+  std::vector<LabelPair> pairs = {
+      {"A", "A"}, {"C", "nan"}, {"C", "B"}, {"nan", "nan"}, {"B", "B"}};
+  const std::set<std::string> unknown =
+      UnknownGroundTruthLabels(pairs, {"A", "B"});
+  EXPECT_EQ(unknown, (std::set<std::string>{"C"}));
+  EXPECT_DOUBLE_EQ(ComputeLabelingMetrics(pairs).accuracy, 3.0 / 5.0);
+  EXPECT_EQ(ScoreLabelsAsNull(unknown, &pairs), 2);
+  EXPECT_EQ(pairs[1], (LabelPair{"nan", "nan"}));
+  EXPECT_EQ(pairs[2], (LabelPair{"nan", "B"}));  // a ghost labelled B: wrong
+  EXPECT_DOUBLE_EQ(ComputeLabelingMetrics(pairs).accuracy, 4.0 / 5.0);
+  EXPECT_TRUE(UnknownGroundTruthLabels(pairs, {"A", "B"}).empty());
+}
+
 TEST(LabelingMetrics, EmptyPairsAreAnError) {
   EXPECT_THROW(ComputeLabelingMetrics({}), ShapeError);
   LabelingEvaluator evaluator;

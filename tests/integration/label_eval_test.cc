@@ -49,10 +49,12 @@ fs::path CorruptHdm05(const fs::path& dir, const std::string& setting) {
 /// What a perfect labeller would write for a corrupted take: its points in
 /// the columns of their ground-truth labels (REFERENCE 5.4 layout: L label
 /// columns, then the frame's null points as `*<k>`). `swap` exchanges the
-/// names of two label columns.
+/// names of two label columns. `unknown` >= 0: a labeller without that
+/// label (a subset-layout model), which calls its points null.
 void WritePerfectLabels(const fs::path& stem,
                         const fs::path& out,
-                        std::pair<int, int> swap = {-1, -1}) {
+                        std::pair<int, int> swap = {-1, -1},
+                        int unknown = -1) {
   const C3dData in = ReadC3d(stem.string() + ".c3d");
   const DatasetReader gt(stem.string() + ".h5");
   LabeledFrames ids;
@@ -67,6 +69,7 @@ void WritePerfectLabels(const fs::path& stem,
   if (swap.first >= 0)
     std::swap(rec.labels[swap.first], rec.labels[swap.second]);
   for (int k = 0; k < K; ++k) rec.labels.push_back(fmt::format("*{}", k));
+  if (unknown >= 0) rec.labels[unknown] = fmt::format("*{}", K);  // unused
   rec.num_file_labels = rec.num_points;
   rec.points.setZero(in.num_frames, 3 * int64_t{rec.num_points});
   rec.residuals.setConstant(in.num_frames, rec.num_points, -1.0f);
@@ -75,7 +78,7 @@ void WritePerfectLabels(const fs::path& stem,
     for (int k = 0; k < K; ++k) {
       if (!in.valid(t, k)) continue;
       const int16_t id = ids.frame_labels(t)[k];
-      const int column = id < L ? id : next_null++;
+      const int column = id < L && id != unknown ? id : next_null++;
       rec.points.row(t).segment<3>(3 * column) =
           in.points.row(t).segment<3>(3 * k);
       rec.residuals(t, column) = 0.0f;
@@ -138,6 +141,70 @@ TEST(EvalTask, PerfectAndSwappedLabelsOfACorruptedTake) {
   EXPECT_THAT(md, HasSubstr("mean ± population std over outputs"));
   const std::string confusion = ReadFile(dir / "out/confusion.csv");
   EXPECT_THAT(confusion, HasSubstr("nan"));
+}
+
+TEST(EvalTask, SubsetLayoutsRemoveMarkersAndUnknownLabelsCanScoreAsNull) {
+  const auto dir = testing::CreateTestDir();
+  std::string err;
+  // `layout.exclude` removes markers from the corrupted take (Table 4's
+  // "markers removed" tests).
+  ASSERT_EQ(testing::RunSomaTask(
+                dir,
+                {"corrupt",
+                 "hydra.run.dir=fewer",
+                 "task.files=[" + Take("HDM_mm_01-02_03_120.c3d") + "]",
+                 "task.settings=[OCE_00_G_00_BT_00]",
+                 "layout.exclude=[RBAC,lshn]"},
+                &err),
+            0)
+      << err;
+  const DatasetReader fewer(
+      (dir / "fewer/OCE_00_G_00_BT_00/HDM_mm_01-02_03_120.h5").string());
+  EXPECT_EQ(fewer.info().num_labels(), 39);
+  EXPECT_EQ(fewer.info().num_points, 39);
+  for (const char* gone : {"RBAC", "LSHN"}) {
+    EXPECT_EQ(std::count(fewer.info().labels.begin(),
+                         fewer.info().labels.end(),
+                         std::string(gone)),
+              0)
+        << gone;
+  }
+  EXPECT_NE(testing::RunSomaTask(dir,
+                                 {"corrupt",
+                                  "hydra.run.dir=bad",
+                                  "task.settings=[OCE_00_G_00_BT_00]",
+                                  "layout.exclude=[RBAC,XYZ1]"},
+                                 &err),
+            0);
+  EXPECT_THAT(err,
+              HasSubstr("layout.exclude: 'XYZ1' is not a label of the layout"));
+
+  // A labeller without label 0 (as a model trained with layout.exclude):
+  // its points are null in the output. Counted as errors by default, or
+  // scored as null with task.unknown_gt_labels=ghost.
+  const fs::path stem = CorruptHdm05(dir, "OCE_00_G_00_BT_00");
+  WritePerfectLabels(stem, dir / "subset.c3d", {-1, -1}, 0);
+  for (const char* mode : {"wrong", "ghost"}) {
+    SCOPED_TRACE(mode);
+    ASSERT_EQ(
+        testing::RunSomaTask(dir,
+                             {"eval",
+                              std::string("hydra.run.dir=") + mode,
+                              "task.gt=" + stem.string() + ".h5",
+                              "task.rec=" + (dir / "subset.c3d").string(),
+                              std::string("task.unknown_gt_labels=") + mode},
+                             &err),
+        0)
+        << err;
+    const ConfigNode m = Metrics(dir / mode);
+    EXPECT_EQ(m.at("unknown_gt_labels").AsDouble(), 1.0);
+    if (std::string(mode) == "wrong") {
+      EXPECT_LT(m.at("acc_mean").AsDouble(), 0.99);  // 1 of 41 labels lost
+      EXPECT_GT(m.at("acc_mean").AsDouble(), 0.95);
+    } else {
+      EXPECT_EQ(m.at("acc_mean").AsDouble(), 1.0);
+    }
+  }
 }
 
 TEST(EvalTask, BadInputIsOneClearError) {

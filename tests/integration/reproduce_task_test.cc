@@ -2,6 +2,7 @@
 // spec with tiny models on a 120-frame cut of the real HDM05 take. Checks the
 // table, the ledger, resuming (a second run runs nothing) and bad input.
 #include "framework/config/ledger.h"
+#include "framework/config/yaml_io.h"
 #include "framework/core/file.h"
 #include "framework/io/c3d.h"
 #include "framework/testing/testing.h"
@@ -10,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include "tests/integration/soma_command.h"
+#include <algorithm>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -106,6 +108,80 @@ TEST(ReproduceTask, RunsTrainsEvaluatesAndResumes) {
   EXPECT_EQ(testing::RunSomaTask(dir, bad, &err), 1);
   EXPECT_THAT(err, HasSubstr("table9.yaml: no such ablation spec. Available"));
   EXPECT_THAT(err, HasSubstr(": mini"));
+}
+
+// Table 4's machinery: a subset-layout model (layout.exclude), a take with
+// markers removed (corrupt_overrides), unknown labels scored as null
+// (eval_overrides), and the rows that need no new training run first.
+TEST(ReproduceTask, SubsetLayoutsAndRowsRunSeparately) {
+  const fs::path dir = testing::CreateTestDir();
+  WriteCut(testing::SharedDataDir() / "c3d/HDM_mm_01-02_03_120.c3d",
+           60,
+           dir / "data/c3d/short.c3d");
+  testing::WriteTextFile(dir, "ablations/layouts.yaml", R"(
+name: layouts
+title: "Layouts"
+seeds: 1
+tests:
+  full: {take: c3d/short.c3d, setting: OC_05_G_03_BT_00,
+         eval_overrides: [task.unknown_gt_labels=ghost]}
+  fewer: {take: c3d/short.c3d, setting: OC_05_G_03_BT_00,
+          corrupt_overrides: ["layout.exclude=[RBAC,LSHN]"]}
+variants:
+  - {name: base}
+  - {name: subset, overrides: ["layout.exclude=[RBAC,LSHN]"]}
+claims: []
+)");
+  std::vector<std::string> args = {
+      "reproduce",
+      "layouts",
+      "task.ablations_dir=" + (dir / "ablations").string(),
+      "task.root=" + (dir / "root").string(),
+      "task.results_dir=" + (dir / "results").string(),
+      "task.data_dir=" + (dir / "data").string(),
+      "task.budget=[\"scale=cpu\",\"train.max_epochs=1\","
+      "\"train.train_frames=64\",\"train.val_frames=32\","
+      "\"train.batch_size=32\",\"model.d_model=10\",\"model.hidden=16\","
+      "\"model.backbone.num_layers=1\"]",
+      "task.jobs=2",
+      "task.variants=[base]",
+      "hydra.run.dir=" + (dir / "run").string()};
+  std::string err;
+  ASSERT_EQ(testing::RunSomaTask(dir, args, &err), 0) << err;
+  EXPECT_THAT(ReadFile(dir / "results/layouts.md"), HasSubstr("PARTIAL"));
+  Ledger ledger = Ledger::Load(dir / "root/layouts");
+  ASSERT_EQ(ledger.entries().size(), 2u);
+  EXPECT_EQ(ledger.entries()[0].status, JobStatus::kDone);
+  EXPECT_EQ(ledger.entries()[1].status, JobStatus::kPending);
+
+  args[args.size() - 2] = "task.variants=[nope]";
+  EXPECT_NE(testing::RunSomaTask(dir, args, &err), 0);
+  EXPECT_THAT(err, HasSubstr("task.variants: 'nope' is not a variant"));
+
+  args.erase(args.end() - 2);  // every variant
+  ASSERT_EQ(testing::RunSomaTask(dir, args, &err), 0) << err;
+  EXPECT_THAT(ReadFile(dir / "results/layouts.md"), Not(HasSubstr("PARTIAL")));
+  ledger = Ledger::Load(dir / "root/layouts");
+  const LedgerEntry& subset = ledger.entries()[1];
+  ASSERT_EQ(subset.status, JobStatus::kDone) << subset.error;
+  // The subset model knows 39 labels: its output has 39 label columns, and
+  // the 2 markers it lacks were scored as null on the full take.
+  const fs::path tests = fs::path(subset.dir) / "tests";
+  std::vector<double> unknown;  // per test
+  for (const auto& test : fs::directory_iterator(tests)) {
+    const fs::path labelled = test.path() / "label/short_labeled.c3d";
+    ASSERT_TRUE(fs::exists(labelled)) << labelled;
+    const C3dData out = ReadC3d(labelled);
+    EXPECT_EQ(std::count_if(out.labels.begin(),
+                            out.labels.end(),
+                            [](const std::string& l) { return l[0] != '*'; }),
+              39);
+    const ConfigNode m =
+        ParseYaml(ReadFile(test.path() / "eval/metrics.yaml"), "metrics.yaml");
+    unknown.push_back(m.at("unknown_gt_labels").AsDouble());
+  }
+  std::sort(unknown.begin(), unknown.end());
+  EXPECT_EQ(unknown, (std::vector<double>{0.0, 2.0}));  // fewer, full
 }
 
 }  // namespace

@@ -21,7 +21,9 @@ seeds: 2
 differences: ["smaller model"]
 tests:
   hdm05: {label: "HDM05", take: c3d/a.c3d, setting: OC_05_G_03_BT_00}
-  occ5: {take: c3d/a.c3d, setting: OCE_05_G_00_BT_00, tracklet: true}
+  occ5: {take: c3d/a.c3d, setting: OCE_05_G_00_BT_00, tracklet: true,
+         corrupt_overrides: ["layout.exclude=[RBAC,LSHN]"],
+         eval_overrides: [task.unknown_gt_labels=ghost]}
 variants:
   - name: base
     label: "Base"
@@ -58,6 +60,11 @@ TEST(AblationSpecTest, ParsesEveryField) {
   EXPECT_FALSE(spec.Test("hdm05").tracklet);
   EXPECT_EQ(spec.Test("occ5").label, "occ5");  // defaults to the name
   EXPECT_TRUE(spec.Test("occ5").tracklet);
+  EXPECT_TRUE(spec.Test("hdm05").corrupt_overrides.empty());
+  EXPECT_THAT(spec.Test("occ5").corrupt_overrides,
+              ElementsAre("layout.exclude=[RBAC,LSHN]"));
+  EXPECT_THAT(spec.Test("occ5").eval_overrides,
+              ElementsAre("task.unknown_gt_labels=ghost"));
   ASSERT_EQ(spec.variants.size(), 3u);
   EXPECT_THAT(spec.Variant("log_softmax").overrides,
               ElementsAre("normalization=log_softmax"));

@@ -130,6 +130,68 @@ TEST_F(ReproductionTest, PlanIsSeedMajorAndSharesModelsByOverrides) {
             plan.models[0].dir);
 }
 
+TEST_F(ReproductionTest, TestOverridesReachTheirCommandsAndDirectories) {
+  const AblationSpec spec = ParseAblationSpec(ParseYaml(R"(
+name: layouts
+title: "Layouts"
+seeds: 1
+tests:
+  full: {take: c3d/take.c3d, setting: OC_05_G_03_BT_00,
+         eval_overrides: [task.unknown_gt_labels=ghost]}
+  fewer: {take: c3d/take.c3d, setting: OC_05_G_03_BT_00,
+          corrupt_overrides: ["layout.exclude=[RBAC]"]}
+variants:
+  - {name: base}
+claims: []
+)",
+                                                        "layouts.yaml"),
+                                              "layouts.yaml");
+  const ReproductionPlan plan = PlanReproduction(spec, options_);
+  // The same take and setting, corrupted twice: with and without RBAC.
+  ASSERT_EQ(plan.corrupt.size(), 2u);
+  EXPECT_NE(plan.corrupt[0].run_dir, plan.corrupt[1].run_dir);
+  EXPECT_THAT(plan.corrupt[0].argv,
+              ::testing::Not(::testing::Contains("layout.exclude=[RBAC]")));
+  EXPECT_THAT(plan.corrupt[1].argv,
+              ::testing::Contains("layout.exclude=[RBAC]"));
+  EXPECT_EQ(plan.corrupt[1].argv.back().rfind("hydra.run.dir=", 0), 0u);
+  ASSERT_EQ(plan.models.size(), 1u);
+  const auto& commands = plan.models[0].commands;
+  ASSERT_EQ(commands.size(), 5u);  // train, (label, eval) x 2
+  EXPECT_THAT(commands[2].argv,
+              ::testing::Contains("task.unknown_gt_labels=ghost"));
+  EXPECT_THAT(
+      commands[4].argv,
+      ::testing::Not(::testing::Contains("task.unknown_gt_labels=ghost")));
+  EXPECT_THAT(commands[3].argv,
+              ::testing::Contains(HasSubstr(plan.corrupt[1].run_dir.string())));
+  EXPECT_NE(plan.models[0].eval_dirs.at("full"),
+            plan.models[0].eval_dirs.at("fewer"));
+  // Tests without extra overrides keep their directory names (finished
+  // evaluations of earlier tables stay valid).
+  EXPECT_EQ(PlanReproduction(Spec(), options_).corrupt[0].run_dir.filename(),
+            "take_OC_05_G_03_BT_00_seed0");
+}
+
+TEST_F(ReproductionTest, OnlySelectedVariantsRunTheOthersStayPending) {
+  const AblationSpec spec = Spec();
+  const ReproductionPlan plan = PlanReproduction(spec, options_);
+  ReproductionOptions only = options_;
+  only.only_variants = {"lsm"};
+  const ReproductionRun run = RunReproduction(plan, only, false);
+  EXPECT_EQ(run.models_done, 2);
+  for (const std::string& call : Calls()) {
+    if (call.rfind("corrupt", 0) == 0) continue;
+    EXPECT_THAT(call, HasSubstr("normalization"));
+  }
+  const Ledger ledger = Ledger::Load(plan.dir);
+  EXPECT_EQ(ledger.entries()[0].status, JobStatus::kPending);
+  EXPECT_EQ(ledger.entries()[1].status, JobStatus::kDone);
+  // The next full run trains only what is left.
+  EXPECT_EQ(RunReproduction(plan, options_, false).models_done, 4);
+  EXPECT_EQ(Calls().size(), 2u * 5u);
+}
+
 TEST_F(ReproductionTest, RunsEverythingOnceThenResumesOnlyWhatIsMissing) {
   const AblationSpec spec = Spec();
   const ReproductionPlan plan = PlanReproduction(spec, options_);
