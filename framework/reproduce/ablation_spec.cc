@@ -59,11 +59,17 @@ AblationVariant ParseVariant(const ConfigNode& node,
   reader.Read("label", &v.label);
   reader.Read("overrides", &v.overrides);
   reader.Read("skip", &v.skip);
+  reader.Read("tests", &v.tests);
+  for (const std::string& test : v.tests) {
+    reader.Check("tests", tests.count(test) > 0, "names of tests of this spec");
+  }
   if (const ConfigNode* paper = reader.Child("paper");
       paper != nullptr && !paper->IsNull()) {
     ConfigReader paper_reader(*paper);
     for (const auto& [test, cell] : paper->entries()) {
       paper_reader.Check(test, tests.count(test) > 0, "a test of this spec");
+      paper_reader.Check(
+          test, v.Evaluates(test), "a test this variant is evaluated on");
       paper_reader.Ignore(test);
       v.paper[test] = ParsePaperCell(cell);
     }
@@ -126,6 +132,11 @@ AblationClaim ParseClaim(const ConfigNode& node,
 }
 
 }  // namespace
+
+bool AblationVariant::Evaluates(const std::string& test) const {
+  return tests.empty() ||
+         std::find(tests.begin(), tests.end(), test) != tests.end();
+}
 
 const AblationVariant& AblationSpec::Variant(const std::string& v) const {
   for (const AblationVariant& variant : variants) {
@@ -196,6 +207,19 @@ AblationSpec ParseAblationSpec(const ConfigNode& node,
     reader.Check("claims", claims->IsList(), "a list of claims");
     for (const ConfigNode& claim : claims->items()) {
       spec.claims.push_back(ParseClaim(claim, variant_names, test_names));
+      const AblationClaim& c = spec.claims.back();
+      for (const auto& [variant, test] :
+           {std::pair{c.better, c.better_test}, {c.worse, c.worse_test}}) {
+        if (!spec.Variant(variant).Evaluates(test)) {
+          throw ConfigError(fmt::format(
+              "Invalid configuration. {}: claim '{}' reads variant '{}' on "
+              "test '{}', which that variant's tests leave out",
+              source,
+              c.text,
+              variant,
+              test));
+        }
+      }
     }
   }
   reader.Finish();

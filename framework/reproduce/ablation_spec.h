@@ -37,8 +37,13 @@ struct AblationVariant {
   std::vector<std::string> overrides;
   /// Non-empty: this row cannot run here; the reason is printed instead.
   std::string skip;
+  /// The tests this variant is evaluated on; empty: every test.
+  std::vector<std::string> tests;
   /// test name -> metric -> the paper's value.
   std::map<std::string, std::map<std::string, PaperValue>> paper;
+
+  /// The variant is evaluated on `test` (`tests` is empty or names it).
+  bool Evaluates(const std::string& test) const;
 };
 
 struct AblationTest {

@@ -162,6 +162,7 @@ void WriteResultsCsv(const AblationSpec& spec,
          "status,note\n";
   for (const AblationVariant& variant : spec.variants) {
     for (const AblationTest& test : spec.tests) {
+      if (!variant.Evaluates(test.name)) continue;
       for (const std::string& metric : ReproductionMetrics()) {
         const CellResult* cell =
             FindCell(cells, variant.name, test.name, metric);
@@ -245,6 +246,7 @@ void WriteResultsMarkdown(const AblationSpec& spec,
   md << "|---|---|---|---|---|---|---|---|\n";
   for (const AblationVariant& variant : spec.variants) {
     for (const AblationTest& test : spec.tests) {
+      if (!variant.Evaluates(test.name)) continue;
       md << "| " << variant.label << " | " << test.label;
       for (const std::string& metric : ReproductionMetrics()) {
         const CellResult* cell =

@@ -211,6 +211,7 @@ ReproductionPlan PlanReproduction(const AblationSpec& spec,
 
       const fs::path checkpoint = model.dir / "checkpoints" / "best.pt";
       for (const AblationTest& test : spec.tests) {
+        if (!variant.Evaluates(test.name)) continue;
         const std::string stem = fs::path(test.take).stem().string();
         std::vector<std::string> test_overrides = test.corrupt_overrides;
         test_overrides.insert(test_overrides.end(),
@@ -444,6 +445,7 @@ std::vector<CellResult> CollectResults(const AblationSpec& spec,
   std::vector<CellResult> cells;
   for (const AblationVariant& variant : spec.variants) {
     for (const AblationTest& test : spec.tests) {
+      if (!variant.Evaluates(test.name)) continue;
       for (const std::string& metric : ReproductionMetrics()) {
         CellResult cell;
         cell.variant = variant.name;

@@ -69,6 +69,12 @@ TEST(AblationSpecTest, ParsesEveryField) {
   EXPECT_THAT(spec.Variant("log_softmax").overrides,
               ElementsAre("normalization=log_softmax"));
   EXPECT_EQ(spec.Variant("no_real").skip, "needs the solver");
+  EXPECT_TRUE(spec.Variant("base").tests.empty());
+  EXPECT_TRUE(spec.Variant("base").Evaluates("occ5"));
+  AblationVariant only_occ5;
+  only_occ5.tests = {"occ5"};
+  EXPECT_TRUE(only_occ5.Evaluates("occ5"));
+  EXPECT_FALSE(only_occ5.Evaluates("hdm05"));
   const PaperValue& acc = spec.Variant("base").paper.at("hdm05").at("acc");
   EXPECT_DOUBLE_EQ(acc.mean, 95.5);
   EXPECT_DOUBLE_EQ(*acc.std, 5.33);
@@ -100,6 +106,16 @@ TEST(AblationSpecTest, BadSpecsAreOneLineConfigErrors) {
        "acc: 95.5, f1_std: 5.33",
        "f1_std needs f1"},
       {"setting: OCE_05_G_00_BT_00, ", "", "Missing key"},
+      {"overrides: [normalization=log_softmax]",
+       "overrides: [normalization=log_softmax]\n    tests: [occ6]",
+       "names of tests of this spec"},
+      {"overrides: [normalization=log_softmax]",
+       "overrides: [normalization=log_softmax]\n    tests: [occ5]",
+       "claim 'Sinkhorn helps' reads variant 'log_softmax' on test 'hdm05', "
+       "which that variant's tests leave out"},
+      {"label: \"Base\"",
+       "label: \"Base\"\n    tests: [occ5]",
+       "a test this variant is evaluated on"},
   };
   for (const Case& c : cases) {
     const std::string message =

@@ -142,6 +142,7 @@ tests:
           corrupt_overrides: ["layout.exclude=[RBAC]"]}
 variants:
   - {name: base}
+  - {name: subset, overrides: ["layout.exclude=[RBAC]"], tests: [full]}
 claims: []
 )",
                                                         "layouts.yaml"),
@@ -155,7 +156,11 @@ claims: []
   EXPECT_THAT(plan.corrupt[1].argv,
               ::testing::Contains("layout.exclude=[RBAC]"));
   EXPECT_EQ(plan.corrupt[1].argv.back().rfind("hydra.run.dir=", 0), 0u);
-  ASSERT_EQ(plan.models.size(), 1u);
+  ASSERT_EQ(plan.models.size(), 2u);
+  // A variant with `tests` is labelled and evaluated only on those.
+  EXPECT_EQ(plan.models[1].commands.size(), 3u);  // train, label, eval
+  EXPECT_EQ(plan.models[1].eval_dirs.count("fewer"), 0u);
+  EXPECT_EQ(CollectResults(spec, plan).size(), 3u * 2u);  // 3 cells x 2 metrics
   const auto& commands = plan.models[0].commands;
   ASSERT_EQ(commands.size(), 5u);  // train, (label, eval) x 2
   EXPECT_THAT(commands[2].argv,
