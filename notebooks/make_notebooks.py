@@ -32,6 +32,15 @@ NOTEBOOKS = {
         "grouped bars per take (per-frame vs tracklet), accuracy and F1, error bars = seed std. The paper's "
         "datasets are not available, so there is no paper column.",
     ),
+    "table4": (
+        "Table 4 — robustness to variations in the marker layout",
+        "The base model (trained on the full 41-marker layout, the superset) on a real HDM05 take with k = 3, "
+        "5, 6, 12 markers removed, and one model per reduced layout (trained without those k markers, the "
+        "subset) on the full take (B+C+G). Plot: accuracy vs k (parsed from the test name `removed_<k>` and "
+        "the variant name `subset_<k>`), both series of ours with seed-std error bars and a frame-std band, "
+        "the paper's two rows (Base Model, Base MoCap) as dashed lines with their std bands, and the base "
+        "model on the full take (k = 0) as a reference point and dotted line.",
+    ),
     "table5": (
         "Table 5 — ablation of SOMA's components",
         "The full model and one component removed at a time, tested on real HDM05 and CMU takes (B+C+G). "

@@ -38,7 +38,7 @@ import pandas as pd  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch, Rectangle  # noqa: E402
 
-NAMES = ("table1", "table2", "table3", "table5", "fig_c1", "fig_c2", "fig_c3")
+NAMES = ("table1", "table2", "table3", "table4", "table5", "fig_c1", "fig_c2", "fig_c3")
 
 OURS_COLOR = "tab:blue"
 PAPER_COLOR = "tab:gray"
@@ -196,15 +196,16 @@ def _metric(df: pd.DataFrame, metric: str = "acc") -> pd.DataFrame:
     return df[df["metric"] == metric].reset_index(drop=True)
 
 
-def _legend_status(ax, markers: bool = False):
-    """Adds a legend entry that explains how partial cells are marked (hatched bars or ringed points)."""
+def _legend_status(ax, markers: bool = False, **legend_kw):
+    """Adds a legend entry that explains how partial cells are marked (hatched bars or ringed points).
+    legend_kw (loc, bbox_to_anchor, ...) go to ax.legend."""
     handles, labels = ax.get_legend_handles_labels()
     if markers:
         handles.append(Line2D([], [], marker="o", ms=10, mfc="none", mec="tab:orange", mew=1.5, linestyle="none"))
     else:
         handles.append(Patch(facecolor="white", edgecolor="black", hatch="///"))
     labels.append("partial (n/m seeds)")
-    ax.legend(handles, labels, fontsize=8, loc="best")
+    ax.legend(handles, labels, **{"fontsize": 8, "loc": "best", **legend_kw})
 
 
 def _paper_note(df: pd.DataFrame) -> str:
@@ -410,6 +411,94 @@ def plot_table3(df: pd.DataFrame):
 
 
 # --------------------------------------------------------------------------------------------
+# Table 4: marker-layout robustness, accuracy vs k markers removed
+
+
+def layout_k(variant: str, test: str) -> tuple[str, float | None]:
+    """(series, k) of a Table 4 row: ("superset", k) for a test removed_<k> (the full-layout model on a
+    take with k markers removed), ("subset", k) for a variant subset_<k> (a model trained without k
+    markers, on the full take), ("full", 0) for the full-layout model on the full take, else ("", None)."""
+    m = re.fullmatch(r"removed_(\d+)", test)
+    if m:
+        return "superset", float(m.group(1))
+    m = re.fullmatch(r"subset_(\d+)", variant)
+    if m:
+        return "subset", float(m.group(1))
+    if test == "full":
+        return "full", 0.0
+    return "", None
+
+
+TABLE4_SERIES = {  # series: (ours, paper's row, color, x offset so that the two series' bars do not overlap)
+    "superset": ("superset model on k removed", "Base Model (superset model on k removed)", OURS_COLOR, -0.12),
+    "subset": ("subset model (k fewer) on the full layout", "Base MoCap (subset model on the full layout)",
+               "tab:green", 0.12),
+}
+
+
+def plot_table4(df: pd.DataFrame, metric: str = "acc"):
+    d = _metric(df, metric).copy()
+    sk = [layout_k(v, t) for v, t in zip(d["variant"], d["test"])]
+    d["series"] = [x[0] for x in sk]
+    d["k"] = [x[1] for x in sk]
+    fig, ax = plt.subplots(figsize=(9.5, 5.2), constrained_layout=True)
+    band_ours, band_paper = "ours ± frame std (bands)", "paper ± std (bands)"
+    for series, (ours_label, paper_label, color, dx) in TABLE4_SERIES.items():
+        g = d[d["series"] == series].sort_values("k").copy()
+        if g.empty:
+            continue
+        g["x"] = g["k"] + dx
+        have = g[g["mean"].notna()]
+        if not have.empty:
+            ax.fill_between(have["x"], have["mean"] - have["std_frames"].fillna(0),
+                            have["mean"] + have["std_frames"].fillna(0), color=color, alpha=0.12,
+                            label=band_ours if band_ours not in ax.get_legend_handles_labels()[1] else None)
+            ax.errorbar(have["x"], have["mean"], yerr=have["std_seeds"].fillna(0), fmt="-o", color=color,
+                        capsize=4, label=f"ours: {ours_label} (± seed std)")
+        else:  # nothing done yet: keep the series in the legend, its points say "not run"
+            ax.plot([], [], "-o", color=color, label=f"ours: {ours_label} (none done yet)")
+        paper = g[g["paper"].notna()]
+        if not paper.empty:
+            ax.plot(paper["k"], paper["paper"], "--^", color=color, alpha=0.7, label=f"paper: {paper_label}")
+            if paper["paper_std"].notna().any():
+                ax.fill_between(paper["k"], paper["paper"] - paper["paper_std"].fillna(0),
+                                paper["paper"] + paper["paper_std"].fillna(0), facecolor=color, alpha=0.08,
+                                hatch="..", edgecolor=color, linewidth=0,
+                                label=band_paper if band_paper not in ax.get_legend_handles_labels()[1] else None)
+        _mark_points(ax, g, "x")
+    full = d[d["series"] == "full"].copy()
+    if not full.empty:  # the full-layout model on the full take: the reference (k = 0)
+        full["x"] = full["k"]
+        r = full.iloc[0]
+        if not pd.isna(r["mean"]):
+            ax.axhline(r["mean"], color="black", linestyle=":", linewidth=1, alpha=0.6)
+            ax.errorbar([0], [r["mean"]], yerr=[_num(r["std_seeds"]) or 0], fmt="D", color="black", capsize=4,
+                        label=f"ours: base model on the full take, k = 0 (dotted: {r['mean']:.2f})")
+            if not pd.isna(r["std_frames"]):
+                ax.errorbar([0], [r["mean"]], yerr=[r["std_frames"]], fmt="none", color="black", alpha=0.2,
+                            elinewidth=8)
+        if not pd.isna(r["paper"]):
+            ax.errorbar([0], [r["paper"]], yerr=[_num(r["paper_std"]) or 0], fmt="^", mfc="white",
+                        color=PAPER_COLOR, capsize=4, label="paper: base model on the full take")
+        _mark_points(ax, full, "x")
+    ks = sorted(d["k"].dropna().unique())
+    ax.set_xticks(ks, ["0\n(full take)" if k == 0 else f"{int(k)}" for k in ks])
+    ax.set_xlim(min(ks, default=0) - 0.8, max(ks, default=12) + 0.8)
+    lo, hi = ax.get_ylim()
+    ax.set_ylim(max(lo, 0), min(hi, 105))
+    ax.set_xlabel("k markers removed from the 41-marker layout\n"
+                  "(superset model: from the test take; subset model: from its training layout)", fontsize=9)
+    ax.set_ylabel(f"{metric} (%)")
+    ax.grid(alpha=0.3)
+    _legend_status(ax, markers=True, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    note = _paper_note(d)
+    ax.set_title(f"Table 4 — {metric} (%) vs variations of the marker layout (real HDM05 take, per-frame);\n"
+                 "paper rows dashed: Base Model (superset on k removed), Base MoCap (subset on the full layout)"
+                 + (f"\n({note})" if note else ""), fontsize=10)
+    return fig
+
+
+# --------------------------------------------------------------------------------------------
 # Table 5: ablation, horizontal bars per variant
 
 
@@ -569,6 +658,7 @@ PLOTS = {
     "table1": plot_table1,
     "table2": plot_table2,
     "table3": plot_table3,
+    "table4": plot_table4,
     "table5": plot_table5,
     "fig_c1": plot_fig_c1,
     "fig_c2": plot_fig_c2,
