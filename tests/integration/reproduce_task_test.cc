@@ -49,25 +49,31 @@ void WriteCut(const fs::path& from, int frames, const fs::path& to) {
   WriteC3d(to, c3d);
 }
 
+/// `soma reproduce <name>` on `dir`'s ablations/ and data/ with tiny models
+/// (1 epoch of 64 frames); the run dir is the last argument.
+std::vector<std::string> TinyReproduceArgs(const fs::path& dir,
+                                           const std::string& name) {
+  return {"reproduce",
+          name,
+          "task.ablations_dir=" + (dir / "ablations").string(),
+          "task.root=" + (dir / "root").string(),
+          "task.results_dir=" + (dir / "results").string(),
+          "task.data_dir=" + (dir / "data").string(),
+          "task.budget=[\"scale=cpu\",\"train.max_epochs=1\","
+          "\"train.train_frames=64\",\"train.val_frames=32\","
+          "\"train.batch_size=32\",\"model.d_model=10\",\"model.hidden=16\","
+          "\"model.backbone.num_layers=1\"]",
+          "task.jobs=2",
+          "hydra.run.dir=" + (dir / "run").string()};
+}
+
 TEST(ReproduceTask, RunsTrainsEvaluatesAndResumes) {
   const fs::path dir = testing::CreateTestDir();
   WriteCut(testing::SharedDataDir() / "c3d/HDM_mm_01-02_03_120.c3d",
            120,
            dir / "data/c3d/short.c3d");
   testing::WriteTextFile(dir, "ablations/mini.yaml", kSpec);
-  const std::vector<std::string> args = {
-      "reproduce",
-      "mini",
-      "task.ablations_dir=" + (dir / "ablations").string(),
-      "task.root=" + (dir / "root").string(),
-      "task.results_dir=" + (dir / "results").string(),
-      "task.data_dir=" + (dir / "data").string(),
-      "task.budget=[\"scale=cpu\",\"train.max_epochs=1\","
-      "\"train.train_frames=64\",\"train.val_frames=32\","
-      "\"train.batch_size=32\",\"model.d_model=10\",\"model.hidden=16\","
-      "\"model.backbone.num_layers=1\"]",
-      "task.jobs=2",
-      "hydra.run.dir=" + (dir / "run").string()};
+  const std::vector<std::string> args = TinyReproduceArgs(dir, "mini");
   std::string err;
   ASSERT_EQ(testing::RunSomaTask(dir, args, &err), 0) << err;
 
@@ -132,20 +138,8 @@ variants:
   - {name: subset, overrides: ["layout.exclude=[RBAC,LSHN]"]}
 claims: []
 )");
-  std::vector<std::string> args = {
-      "reproduce",
-      "layouts",
-      "task.ablations_dir=" + (dir / "ablations").string(),
-      "task.root=" + (dir / "root").string(),
-      "task.results_dir=" + (dir / "results").string(),
-      "task.data_dir=" + (dir / "data").string(),
-      "task.budget=[\"scale=cpu\",\"train.max_epochs=1\","
-      "\"train.train_frames=64\",\"train.val_frames=32\","
-      "\"train.batch_size=32\",\"model.d_model=10\",\"model.hidden=16\","
-      "\"model.backbone.num_layers=1\"]",
-      "task.jobs=2",
-      "task.variants=[base]",
-      "hydra.run.dir=" + (dir / "run").string()};
+  std::vector<std::string> args = TinyReproduceArgs(dir, "layouts");
+  args.insert(args.end() - 1, "task.variants=[base]");
   std::string err;
   ASSERT_EQ(testing::RunSomaTask(dir, args, &err), 0) << err;
   EXPECT_THAT(ReadFile(dir / "results/layouts.md"), HasSubstr("PARTIAL"));
