@@ -145,6 +145,13 @@ std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
                             ? *outcome.gap > 0
                             : std::abs(*outcome.gap) <= claim.tolerance;
       outcome.verdict = pass ? "pass" : "fail";
+      if (outcome.gap_se) {
+        const double margin =
+            claim.kind == "greater"
+                ? std::abs(*outcome.gap)
+                : std::abs(std::abs(*outcome.gap) - claim.tolerance);
+        outcome.within_noise = margin < 2 * *outcome.gap_se;
+      }
     } else {
       outcome.verdict = "not run";
     }
@@ -294,12 +301,7 @@ void WriteResultsMarkdown(const AblationSpec& spec,
                             outcome.paired ? "paired " : "");
       }
       std::string verdict = "**" + outcome.verdict + "**";
-      // A "greater" claim whose gap is under two standard errors is not
-      // resolved by this many seeds.
-      if (c.kind == "greater" && outcome.gap && outcome.gap_se &&
-          std::abs(*outcome.gap) < 2 * *outcome.gap_se) {
-        verdict += " (within seed noise)";
-      }
+      if (outcome.within_noise) verdict += " (within seed noise)";
       const std::string tests = same_test
                                     ? spec.Test(c.test).label
                                     : spec.Test(c.better_test).label + " vs " +

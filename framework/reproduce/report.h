@@ -53,12 +53,16 @@ struct ClaimOutcome {
   bool paired = false;              // gap_se is the paired one
   std::optional<double> paper_gap;  // the paper's, when known
   std::string verdict;              // pass | fail | not run
+  /// The verdict is not resolved by this many seeds: the claim's boundary
+  /// (0 for greater, ±tolerance for close) lies within 2 standard errors of
+  /// the gap, so a rerun with other seeds could flip it.
+  bool within_noise = false;
 };
 
 /// Checks every claim of `spec` on `cells` (greater: gap > 0; close: |gap| <=
 /// tolerance). A claim whose cells have no finished seed is "not run". The
-/// verdict is about the means; the markdown adds "within seed noise" when
-/// |gap| < 2 standard errors.
+/// verdict is about the means; `within_noise` flags a verdict whose boundary
+/// is under 2 standard errors from the gap.
 std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
                                       const std::vector<CellResult>& cells);
 

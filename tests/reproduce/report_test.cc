@@ -107,7 +107,34 @@ TEST(ReportTest, ClaimsAreCheckedWithTheirGaps) {
 TEST(ReportTest, CloseClaimFailsOutsideItsTolerance) {
   std::vector<CellResult> cells = Cells();
   cells[1] = Cell("base", "t5", {90.0, 91.0, 92.0});
-  EXPECT_EQ(CheckClaims(Spec(), cells)[2].verdict, "fail");
+  const ClaimOutcome out = CheckClaims(Spec(), cells)[2];
+  EXPECT_EQ(out.verdict, "fail");
+  // Every seed differs by 6: the paired s.e. is 0, the fail is resolved.
+  EXPECT_FALSE(out.within_noise);
+}
+
+TEST(ReportTest, VerdictsNearTheirBoundaryAreWithinSeedNoise) {
+  std::vector<CellResult> cells = Cells();
+  // Close claim: gap 3 against tolerance 2; per-seed differences {5, 2, 2}
+  // give a paired s.e. of 1, so the boundary is 1 s.e. away.
+  cells[1] = Cell("base", "t5", {91.0, 95.0, 96.0});
+  // Greater claim: gap 0.5 with s.e. sqrt(1/3 + 1) = 1.15.
+  cells[2] = Cell("weak", "t0", {96.5});
+  const std::vector<ClaimOutcome> out = CheckClaims(Spec(), cells);
+  EXPECT_EQ(out[2].verdict, "fail");
+  EXPECT_NEAR(*out[2].gap_se, 1.0, 1e-12);
+  EXPECT_TRUE(out[2].within_noise);
+  EXPECT_EQ(out[0].verdict, "pass");
+  EXPECT_TRUE(out[0].within_noise);
+  EXPECT_FALSE(CheckClaims(Spec(), Cells())[0].within_noise);  // gap 7
+  EXPECT_FALSE(CheckClaims(Spec(), Cells())[2].within_noise);
+  EXPECT_FALSE(out[3].within_noise);  // not run
+
+  const auto dir = testing::CreateTestDir();
+  WriteResultsMarkdown(Spec(), cells, ReportContext{}, dir / "demo.md");
+  const std::string md = ReadFile(dir / "demo.md");
+  EXPECT_THAT(md, HasSubstr("**fail** (within seed noise)"));
+  EXPECT_THAT(md, HasSubstr("**pass** (within seed noise)"));
 }
 
 TEST(ReportTest, PairedStandardErrorOnlyOverSharedSeeds) {
