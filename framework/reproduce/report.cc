@@ -40,6 +40,18 @@ const PaperValue* FindPaper(const AblationVariant& variant,
   return m == t->second.end() ? nullptr : &m->second;
 }
 
+/// Text for a markdown table cell: a '|' would end the cell, so it is
+/// escaped (GitHub's tables accept "\|", also inside code spans).
+std::string MarkdownCell(const std::string& text) {
+  std::string out;
+  out.reserve(text.size());
+  for (char c : text) {
+    if (c == '|') out += '\\';
+    out += c;
+  }
+  return out;
+}
+
 std::string Fixed(std::optional<double> value) {
   return value ? fmt::format("{:.2f}", *value) : "";
 }
@@ -216,21 +228,22 @@ void WriteResultsMarkdown(const AblationSpec& spec,
   }
   if (!spec.description.empty()) md << spec.description << "\n\n";
   md << "| | |\n|---|---|\n";
-  md << "| reproduces | " << spec.paper_ref << " |\n";
-  md << "| command | `" << context.command << "` |\n";
+  md << "| reproduces | " << MarkdownCell(spec.paper_ref) << " |\n";
+  md << "| command | `" << MarkdownCell(context.command) << "` |\n";
   md << "| training budget (every model) | `"
-     << fmt::format("{}", fmt::join(context.budget, " ")) << "` |\n";
+     << MarkdownCell(fmt::format("{}", fmt::join(context.budget, " ")))
+     << "` |\n";
   md << "| seeds | " << spec.seeds << " training seeds per variant |\n";
   md << "| test data | ";
   for (size_t i = 0; i < spec.tests.size(); ++i) {
     const AblationTest& t = spec.tests[i];
     md << (i ? "; " : "")
-       << fmt::format(
+       << MarkdownCell(fmt::format(
               "{}: `{}` corrupted as `{}`, {}",
               t.name,
               t.take,
               t.setting,
-              t.tracklet ? "tracklet labelling" : "per-frame labelling");
+              t.tracklet ? "tracklet labelling" : "per-frame labelling"));
   }
   md << " |\n";
   md << fmt::format(
@@ -254,7 +267,8 @@ void WriteResultsMarkdown(const AblationSpec& spec,
   for (const AblationVariant& variant : spec.variants) {
     for (const AblationTest& test : spec.tests) {
       if (!variant.Evaluates(test.name)) continue;
-      md << "| " << variant.label << " | " << test.label;
+      md << "| " << MarkdownCell(variant.label) << " | "
+         << MarkdownCell(test.label);
       for (const std::string& metric : ReproductionMetrics()) {
         const CellResult* cell =
             FindCell(cells, variant.name, test.name, metric);
@@ -307,11 +321,11 @@ void WriteResultsMarkdown(const AblationSpec& spec,
                                     : spec.Test(c.better_test).label + " vs " +
                                           spec.Test(c.worse_test).label;
       md << fmt::format("| {} ({}) | {}, {} | {} | {} | {} |\n",
-                        c.text,
-                        rule,
-                        tests,
+                        MarkdownCell(c.text),
+                        MarkdownCell(rule),
+                        MarkdownCell(tests),
                         c.metric,
-                        paper.empty() ? "—" : paper,
+                        paper.empty() ? "—" : MarkdownCell(paper),
                         ours,
                         verdict);
     }

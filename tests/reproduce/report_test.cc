@@ -135,6 +135,8 @@ TEST(ReportTest, VerdictsNearTheirBoundaryAreWithinSeedNoise) {
   const std::string md = ReadFile(dir / "demo.md");
   EXPECT_THAT(md, HasSubstr("**fail** (within seed noise)"));
   EXPECT_THAT(md, HasSubstr("**pass** (within seed noise)"));
+  // The close rule's bars are escaped, else they would split the cell.
+  EXPECT_THAT(md, HasSubstr("(\\|base@t0 − base@t5\\| ≤ 2.0)"));
 }
 
 TEST(ReportTest, PairedStandardErrorOnlyOverSharedSeeds) {
