@@ -95,7 +95,10 @@ def figures_dir() -> pathlib.Path:
 
 
 def load(name: str) -> pd.DataFrame | None:
-    """results/<name>.csv as a DataFrame, or None (with a message) when it does not exist yet."""
+    """results/<name>.csv as a DataFrame, or None (with a message) when it does not exist yet;
+    "claims" reads every results/<table>_claims.csv instead (load_claims)."""
+    if name == "claims":
+        return load_claims()
     path = results_dir() / f"{name}.csv"
     if not path.is_file():
         print(f"results/{name}.csv: not run yet (no {path})")
@@ -167,7 +170,10 @@ def fmt_pm(mean, std) -> str:
 
 
 def summary(df: pd.DataFrame) -> pd.DataFrame:
-    """Ours vs paper side by side: one row per (variant, test), acc and f1 columns."""
+    """Ours vs paper side by side: one row per (variant, test), acc and f1 columns (claims: one row per
+    claim, claims_summary)."""
+    if "claim" in df.columns:
+        return claims_summary(df)
     rows = []
     for (variant, test), g in df.groupby(["variant", "test"], sort=False):
         first = g.iloc[0]
@@ -654,6 +660,115 @@ def plot_fig_c3(df: pd.DataFrame, metric: str = "acc"):
     return fig
 
 
+# --------------------------------------------------------------------------------------------
+# The paper's claims across every table: results/<name>_claims.csv
+
+CLAIM_NUMERIC = ("tolerance", "paper_gap", "gap", "gap_se")
+PASS_COLOR = "tab:green"
+FAIL_COLOR = "tab:red"
+
+
+def load_claims() -> pd.DataFrame | None:
+    """Every results/<name>_claims.csv, in NAMES order, as one DataFrame, or None (with a message) when
+    none exists yet. One row per claim: table, claim, rule, kind (greater|close), metric, better,
+    better_test, worse, worse_test, tolerance, paper_gap, gap, gap_se (points), paired, verdict
+    (pass|fail|not run), within_noise (the boundary is under 2 s.e. from the gap), paper_note."""
+    paths = [p for p in (results_dir() / f"{n}_claims.csv" for n in NAMES) if p.is_file()]
+    if not paths:
+        print(f"results/<name>_claims.csv: not run yet (none in {results_dir()})")
+        return None
+    df = pd.concat([pd.read_csv(p, dtype=str, keep_default_na=False) for p in paths], ignore_index=True)
+    for col in CLAIM_NUMERIC:
+        df[col] = pd.to_numeric(df[col].replace("", np.nan), errors="coerce")
+    df["paired"] = df["paired"] == "1"
+    df["within_noise"] = df["within_noise"] == "1"
+    print(f"{len(paths)} claims files, {len(df)} claims: "
+          + ", ".join(f"{k} {v}" for k, v in df["verdict"].value_counts().items())
+          + f"; {int(df['within_noise'].sum())} within seed noise")
+    return df
+
+
+def claims_counts(df: pd.DataFrame) -> pd.DataFrame:
+    """Per table: how many claims pass, fail or are not run, and how many verdicts are within seed noise."""
+    rows = []
+    for table, g in df.groupby("table", sort=False):
+        rows.append({"table": table, "claims": len(g), "pass": int((g["verdict"] == "pass").sum()),
+                     "fail": int((g["verdict"] == "fail").sum()),
+                     "not run": int((g["verdict"] == "not run").sum()),
+                     "within seed noise": int(g["within_noise"].sum())})
+    out = pd.DataFrame(rows)
+    total = {"table": "all", **{c: int(out[c].sum()) for c in out.columns if c != "table"}}
+    return pd.concat([out, pd.DataFrame([total])], ignore_index=True).set_index("table")
+
+
+def claims_summary(df: pd.DataFrame) -> pd.DataFrame:
+    """One row per claim: its rule, the paper's gap, ours ± s.e. and the verdict."""
+    rows = []
+    for _, r in df.iterrows():
+        ours = "" if pd.isna(r["gap"]) else f"{r['gap']:+.2f}"
+        if ours and not pd.isna(r["gap_se"]):
+            ours += f" ± {r['gap_se']:.2f}" + (" (paired)" if r["paired"] else "")
+        paper = "" if pd.isna(r["paper_gap"]) else f"{r['paper_gap']:+.2f}"
+        rows.append({"table": r["table"], "claim": r["claim"], "rule": r["rule"],
+                     "paper gap": paper or "—", "our gap ± s.e.": ours or "—",
+                     "verdict": r["verdict"] + (" (within seed noise)" if r["within_noise"] else "")})
+    return pd.DataFrame(rows).set_index(["table", "claim"])
+
+
+def _shorten(text: str, n: int = 70) -> str:
+    return text if len(text) <= n else text[: n - 1] + "…"
+
+
+def plot_claims(df: pd.DataFrame):
+    """A forest plot: one row per claim, our gap (better − worse, points) with ±2 s.e., the region where
+    the claim passes shaded (gap > 0, or |gap| ≤ tolerance), and the paper's gap where it is known."""
+    n = len(df)
+    fig, ax = plt.subplots(figsize=(12, 0.34 * n + 1.8), constrained_layout=True)
+    finite = pd.concat([df["gap"] + 2 * df["gap_se"].fillna(0), df["gap"] - 2 * df["gap_se"].fillna(0),
+                        df["paper_gap"], df["tolerance"], -df["tolerance"]]).dropna()
+    lo, hi = (min(finite.min(), 0.0), max(finite.max(), 0.0)) if not finite.empty else (-1.0, 1.0)
+    pad = 0.06 * (hi - lo or 1.0)
+    lo, hi = lo - pad, hi + pad
+    labels = []
+    for i, (_, r) in enumerate(df.iterrows()):
+        if r["kind"] == "close" and not pd.isna(r["tolerance"]):
+            ax.add_patch(Rectangle((-r["tolerance"], i - 0.4), 2 * r["tolerance"], 0.8, color=PASS_COLOR,
+                                   alpha=0.12, lw=0))
+        else:
+            ax.add_patch(Rectangle((0, i - 0.4), hi, 0.8, color=PASS_COLOR, alpha=0.12, lw=0))
+        if not pd.isna(r["paper_gap"]):
+            ax.plot(r["paper_gap"], i, "x", color="dimgray", ms=7, mew=1.6)
+        if pd.isna(r["gap"]):
+            ax.text(lo + pad / 2, i, "not run", va="center", fontsize=8, color=FAIL_COLOR)
+        else:
+            color = PASS_COLOR if r["verdict"] == "pass" else FAIL_COLOR
+            if not pd.isna(r["gap_se"]):
+                ax.errorbar(r["gap"], i, xerr=2 * r["gap_se"], fmt="none", ecolor=color, capsize=3, lw=1.2)
+            ax.plot(r["gap"], i, "o", ms=7, mec=color, mew=1.6, mfc="white" if r["within_noise"] else color)
+        labels.append(f"{r['table']}: {_shorten(r['claim'])}")
+    ax.axvline(0, color="black", lw=0.8)
+    ax.set_xlim(lo, hi)
+    ax.set_ylim(n - 0.5, -0.5)
+    ax.set_yticks(range(n), labels, fontsize=8)
+    tables = list(df["table"])
+    for i in range(1, n):
+        if tables[i] != tables[i - 1]:
+            ax.axhline(i - 0.5, color="gray", lw=0.6, ls=":")
+    ax.set_xlabel("gap in points (the claim's better − worse; close claims: pass inside ± tolerance)")
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(handles=[
+        Line2D([], [], marker="o", ls="none", color=PASS_COLOR, label="ours: pass (± 2 s.e. over seeds)"),
+        Line2D([], [], marker="o", ls="none", color=FAIL_COLOR, label="ours: fail"),
+        Line2D([], [], marker="o", ls="none", mec="black", mfc="white", label="hollow: within seed noise"),
+        Line2D([], [], marker="x", ls="none", color="dimgray", label="the paper's gap"),
+        Patch(color=PASS_COLOR, alpha=0.12, label="where the claim passes"),
+    ], fontsize=8, loc="lower left", bbox_to_anchor=(0, 1.0), ncol=5, frameon=False)
+    counts = df["verdict"].value_counts()
+    fig.suptitle(f"The paper's claims at our scale: {counts.get('pass', 0)} pass, {counts.get('fail', 0)} fail, "
+                 f"{counts.get('not run', 0)} not run; within seed noise: {int(df['within_noise'].sum())}")
+    return fig
+
+
 PLOTS = {
     "table1": plot_table1,
     "table2": plot_table2,
@@ -663,6 +778,7 @@ PLOTS = {
     "fig_c1": plot_fig_c1,
     "fig_c2": plot_fig_c2,
     "fig_c3": plot_fig_c3,
+    "claims": plot_claims,
 }
 
 
@@ -671,7 +787,7 @@ def plot(name: str, df: pd.DataFrame):
 
 
 def main(argv: list[str]) -> int:
-    for name in argv or NAMES:
+    for name in argv or (*NAMES, "claims"):
         df = load(name)
         if df is not None:
             print(summary(df).to_string())

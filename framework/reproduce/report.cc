@@ -105,6 +105,18 @@ std::optional<double> CellResult::FrameStd() const {
   return MeanOf(seed_frame_stds);
 }
 
+std::string ClaimRule(const AblationClaim& claim) {
+  const bool same_test = claim.better_test == claim.worse_test;
+  const std::string better =
+      same_test ? claim.better : claim.better + "@" + claim.better_test;
+  const std::string worse =
+      same_test ? claim.worse : claim.worse + "@" + claim.worse_test;
+  return claim.kind == "greater"
+             ? fmt::format("{} − {} > 0", better, worse)
+             : fmt::format(
+                   "|{} − {}| ≤ {:.1f}", better, worse, claim.tolerance);
+}
+
 std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
                                       const std::vector<CellResult>& cells) {
   std::vector<ClaimOutcome> outcomes;
@@ -211,6 +223,37 @@ void WriteResultsCsv(const AblationSpec& spec,
   WriteFileAtomic(path, csv.str());
 }
 
+void WriteClaimsCsv(const AblationSpec& spec,
+                    const std::vector<CellResult>& cells,
+                    const std::filesystem::path& path) {
+  std::ostringstream csv;
+  csv << "table,claim,rule,kind,metric,better,better_test,worse,worse_test,"
+         "tolerance,paper_gap,gap,gap_se,paired,verdict,within_noise,"
+         "paper_note\n";
+  for (const ClaimOutcome& outcome : CheckClaims(spec, cells)) {
+    const AblationClaim& c = *outcome.claim;
+    csv << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+                       spec.name,
+                       CsvField(c.text),
+                       CsvField(ClaimRule(c)),
+                       c.kind,
+                       c.metric,
+                       c.better,
+                       c.better_test,
+                       c.worse,
+                       c.worse_test,
+                       c.kind == "close" ? Fixed(c.tolerance) : "",
+                       Fixed(outcome.paper_gap),
+                       Fixed(outcome.gap),
+                       Fixed(outcome.gap_se),
+                       outcome.gap_se ? (outcome.paired ? "1" : "0") : "",
+                       outcome.verdict,
+                       outcome.gap ? (outcome.within_noise ? "1" : "0") : "",
+                       CsvField(c.paper_note));
+  }
+  WriteFileAtomic(path, csv.str());
+}
+
 void WriteResultsMarkdown(const AblationSpec& spec,
                           const std::vector<CellResult>& cells,
                           const ReportContext& context,
@@ -300,14 +343,6 @@ void WriteResultsMarkdown(const AblationSpec& spec,
         paper += (paper.empty() ? "" : " ") + ("(" + c.paper_note + ")");
       }
       const bool same_test = c.better_test == c.worse_test;
-      const std::string better =
-          same_test ? c.better : c.better + "@" + c.better_test;
-      const std::string worse =
-          same_test ? c.worse : c.worse + "@" + c.worse_test;
-      const std::string rule =
-          c.kind == "greater"
-              ? fmt::format("{} − {} > 0", better, worse)
-              : fmt::format("|{} − {}| ≤ {:.1f}", better, worse, c.tolerance);
       std::string ours = outcome.gap ? Signed(*outcome.gap) : "—";
       if (outcome.gap_se) {
         ours += fmt::format(" ± {:.2f} ({}s.e.)",
@@ -322,7 +357,7 @@ void WriteResultsMarkdown(const AblationSpec& spec,
                                           spec.Test(c.worse_test).label;
       md << fmt::format("| {} ({}) | {}, {} | {} | {} | {} |\n",
                         MarkdownCell(c.text),
-                        MarkdownCell(rule),
+                        MarkdownCell(ClaimRule(c)),
                         MarkdownCell(tests),
                         c.metric,
                         paper.empty() ? "—" : MarkdownCell(paper),

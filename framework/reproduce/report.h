@@ -83,6 +83,19 @@ void WriteResultsCsv(const AblationSpec& spec,
                      const std::vector<CellResult>& cells,
                      const std::filesystem::path& path);
 
+/// The claim's test as text: "base − no_transformer > 0", or
+/// "|a@t0 − a@t5| ≤ 2.0" for a close claim across two tests.
+std::string ClaimRule(const AblationClaim& claim);
+
+/// One row per claim of `spec` (results/<name>_claims.csv): table, claim,
+/// rule, kind, metric, better, better_test, worse, worse_test, tolerance
+/// (close claims), paper_gap, gap, gap_se, paired (1/0), verdict
+/// (pass|fail|not run), within_noise (1/0), paper_note. Gaps are in points;
+/// empty cells are unknown (no paper gap, not run, fewer than two seeds).
+void WriteClaimsCsv(const AblationSpec& spec,
+                    const std::vector<CellResult>& cells,
+                    const std::filesystem::path& path);
+
 void WriteResultsMarkdown(const AblationSpec& spec,
                           const std::vector<CellResult>& cells,
                           const ReportContext& context,

@@ -88,6 +88,9 @@ class ReproduceTask : public Task {
       CreateDirectories(results);
       WriteResultsCsv(spec, cells, results / (spec.name + ".csv"));
       WriteResultsMarkdown(spec, cells, now, results / (spec.name + ".md"));
+      if (!spec.claims.empty()) {
+        WriteClaimsCsv(spec, cells, results / (spec.name + "_claims.csv"));
+      }
       WriteTrainingCurvesCsv(plan, results / (spec.name + "_curves.csv"));
       return now;
     };

@@ -90,6 +90,9 @@ TEST(ReproduceTask, RunsTrainsEvaluatesAndResumes) {
       HasSubstr("mini,base,Base,short,HDM05 cut,OC_05_G_03_BT_00,per-frame,"
                 "acc,2,2,"));
   EXPECT_THAT(csv, HasSubstr(",95.50,,done,"));
+  EXPECT_THAT(ReadFile(dir / "results/mini_claims.csv"),
+              HasSubstr("mini,Sinkhorn beats Log-Softmax,base − lsm > 0,"
+                        "greater,acc,base,short,lsm,short,,"));
   const Ledger ledger = Ledger::Load(dir / "root/mini");
   ASSERT_EQ(ledger.entries().size(), 4u);
   for (const LedgerEntry& e : ledger.entries()) {

@@ -67,31 +67,38 @@ for nb in "${notebooks[@]}"; do
     continue
   fi
   png=$figures/$name.png
-  if [[ -f "$results/$name.csv" ]]; then
+  # claims.ipynb reads every <table>_claims.csv; the others read <name>.csv.
+  input=$results/$name.csv
+  if [[ $name == claims ]]; then
+    inputs=("$results"/*_claims.csv)
+    input=${inputs[0]:-$results/<table>_claims.csv}
+  fi
+  if [[ -f "$input" ]]; then
     if [[ ! -s "$png" || ! "$png" -nt "$stamp" ]]; then
-      echo "FAIL $name: $results/$name.csv exists but no fresh $png was written"
+      echo "FAIL $name: $input exists but no fresh $png was written"
       failed+=("$name")
       continue
     fi
     echo "ok   $name ($((SECONDS - t0)) s): $png"
   else
     if ! grep -q "not run yet" "$tmp/$name.ipynb"; then
-      echo "FAIL $name: no $name.csv, but the notebook did not say \"not run yet\""
+      echo "FAIL $name: no $input, but the notebook did not say \"not run yet\""
       failed+=("$name")
       continue
     fi
     if [[ -f "$png" && "$png" -nt "$stamp" ]]; then
-      echo "FAIL $name: no $name.csv, but $png was written"
+      echo "FAIL $name: no $input, but $png was written"
       failed+=("$name")
       continue
     fi
-    echo "ok   $name ($((SECONDS - t0)) s): not run yet (no $name.csv)"
+    echo "ok   $name ($((SECONDS - t0)) s): not run yet (no $input)"
   fi
 done
 
 for csv in "$results"/*.csv; do
   base=$(basename "$csv" .csv)
   base=${base%_curves}  # <name>_curves.csv is read by <name>.ipynb
+  [[ $base == *_claims ]] && base=claims  # <name>_claims.csv by claims.ipynb
   [[ -f "$nbdir/$base.ipynb" ]] || echo "note: no notebook plots $csv"
 done
 echo "run_notebooks: ${#notebooks[@]} notebooks in $((SECONDS - start)) s; results $results, figures $figures"

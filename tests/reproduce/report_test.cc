@@ -153,6 +153,31 @@ TEST(ReportTest, PairedStandardErrorOnlyOverSharedSeeds) {
   EXPECT_FALSE(CheckClaims(Spec(), cells)[2].paired);
 }
 
+TEST(ReportTest, ClaimsCsvHasOneRowPerClaimWithItsVerdict) {
+  const auto dir = testing::CreateTestDir();
+  WriteClaimsCsv(Spec(), Cells(), dir / "demo_claims.csv");
+  std::istringstream csv(ReadFile(dir / "demo_claims.csv"));
+  std::string line;
+  std::getline(csv, line);
+  EXPECT_EQ(line,
+            "table,claim,rule,kind,metric,better,better_test,worse,worse_test,"
+            "tolerance,paper_gap,gap,gap_se,paired,verdict,within_noise,"
+            "paper_note");
+  std::vector<std::string> rows;
+  while (std::getline(csv, line)) rows.push_back(line);
+  ASSERT_EQ(rows.size(), 4u);
+  EXPECT_EQ(rows[0],
+            "demo,base beats weak,base − weak > 0,greater,acc,base,t0,weak,t0,,"
+            "8.00,7.00,1.15,0,pass,0,");
+  EXPECT_EQ(rows[2],
+            "demo,robust,|base@t0 − base@t5| ≤ 2.0,close,acc,base,t0,base,t5,"
+            "2.00,1.00,1.33,0.17,1,pass,0,");
+  // Not run: no gap, no s.e., no noise flag; the paper's gap and note stay.
+  EXPECT_EQ(rows[3],
+            "demo,todo beats weak,todo − weak > 0,greater,acc,todo,t0,weak,t0,,"
+            "1.00,,,,not run,,Fig. 9");
+}
+
 TEST(ReportTest, CsvHasOneRowPerVariantTestAndMetricWithStatus) {
   const auto dir = testing::CreateTestDir();
   WriteResultsCsv(Spec(), Cells(), dir / "demo.csv");
