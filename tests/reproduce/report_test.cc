@@ -64,6 +64,16 @@ CellResult Cell(std::string variant,
   return cell;
 }
 
+/// The lines of a CSV file after its header, which goes to `header`.
+std::vector<std::string> CsvRows(const std::filesystem::path& path,
+                                 std::string* header) {
+  std::istringstream csv(ReadFile(path));
+  std::getline(csv, *header);
+  std::vector<std::string> rows;
+  for (std::string line; std::getline(csv, line);) rows.push_back(line);
+  return rows;
+}
+
 std::vector<CellResult> Cells() {
   return {Cell("base", "t0", {96.0, 97.0, 98.0}, {4.0, 5.0, 6.0}),
           Cell("base", "t5", {95.0, 95.5, 96.5}),
@@ -156,15 +166,13 @@ TEST(ReportTest, PairedStandardErrorOnlyOverSharedSeeds) {
 TEST(ReportTest, ClaimsCsvHasOneRowPerClaimWithItsVerdict) {
   const auto dir = testing::CreateTestDir();
   WriteClaimsCsv(Spec(), Cells(), dir / "demo_claims.csv");
-  std::istringstream csv(ReadFile(dir / "demo_claims.csv"));
-  std::string line;
-  std::getline(csv, line);
-  EXPECT_EQ(line,
+  std::string header;
+  const std::vector<std::string> rows =
+      CsvRows(dir / "demo_claims.csv", &header);
+  EXPECT_EQ(header,
             "table,claim,rule,kind,metric,better,better_test,worse,worse_test,"
             "tolerance,paper_gap,gap,gap_se,paired,verdict,within_noise,"
             "paper_note");
-  std::vector<std::string> rows;
-  while (std::getline(csv, line)) rows.push_back(line);
   ASSERT_EQ(rows.size(), 4u);
   EXPECT_EQ(rows[0],
             "demo,base beats weak,base − weak > 0,greater,acc,base,t0,weak,t0,,"
@@ -181,15 +189,12 @@ TEST(ReportTest, ClaimsCsvHasOneRowPerClaimWithItsVerdict) {
 TEST(ReportTest, CsvHasOneRowPerVariantTestAndMetricWithStatus) {
   const auto dir = testing::CreateTestDir();
   WriteResultsCsv(Spec(), Cells(), dir / "demo.csv");
-  std::istringstream csv(ReadFile(dir / "demo.csv"));
-  std::string line;
-  std::getline(csv, line);
-  EXPECT_EQ(line,
+  std::string header;
+  const std::vector<std::string> rows = CsvRows(dir / "demo.csv", &header);
+  EXPECT_EQ(header,
             "table,variant,variant_label,test,test_label,setting,mode,metric,"
             "seeds_done,seeds_planned,mean,std_seeds,std_frames,paper,"
             "paper_std,status,note");
-  std::vector<std::string> rows;
-  while (std::getline(csv, line)) rows.push_back(line);
   ASSERT_EQ(rows.size(), 4u * 2u * 2u);
   EXPECT_EQ(rows[0],
             "demo,base,base,t0,zero,OCE_00_G_00_BT_00,per-frame,acc,3,3,"
