@@ -1,5 +1,7 @@
 #include "framework/reproduce/ablation_spec.h"
 
+#include "framework/config/compose.h"
+#include "framework/config/override.h"
 #include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
 #include "framework/testing/testing.h"
@@ -144,8 +146,14 @@ TEST(AblationSpecTest, LoadChecksTheFileNameAndListsAvailableSpecs) {
 TEST(AblationSpecTest, EveryShippedSpecIsValid) {
   const auto dir = testing::SourceDir() / "ablations";
   const std::vector<std::string> names = ListAblationSpecs(dir);
-  for (const char* required :
-       {"table1", "table2", "table3", "table5", "fig_c1", "fig_c2"}) {
+  for (const char* required : {"table1",
+                               "table2",
+                               "table3",
+                               "table4",
+                               "table5",
+                               "fig_c1",
+                               "fig_c2",
+                               "fig_c3"}) {
     EXPECT_THAT(names, ::testing::Contains(required));
   }
   for (const std::string& name : names) {
@@ -155,6 +163,56 @@ TEST(AblationSpecTest, EveryShippedSpecIsValid) {
         << name << " must state how it differs from the paper";
     EXPECT_FALSE(spec.claims.empty()) << name;
   }
+}
+
+// Every override of a shipped spec composes with the task it is passed to, so
+// a misspelt key fails here, not hours into a reproduction.
+TEST(AblationSpecTest, EveryShippedOverrideComposesWithItsTask) {
+  const auto compose = [](const std::string& task,
+                          const std::vector<std::string>& overrides) {
+    ComposeRequest request;
+    request.search_path = {(testing::SourceDir() / "configs").string()};
+    std::vector<std::string> args = {"task=" + task};
+    args.insert(args.end(), overrides.begin(), overrides.end());
+    request.overrides = ParseOverrides(args);
+    return TaskConfig(Compose(request).root);
+  };
+  // The composition error, or "" when the overrides compose.
+  const auto error = [&](const std::string& task,
+                         const std::vector<std::string>& overrides) {
+    try {
+      compose(task, overrides);
+      return std::string();
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+  };
+  const ConfigNode reproduce = compose("reproduce", {});
+  std::vector<std::string> budget;
+  for (const ConfigNode& item : reproduce.at("task").at("budget").items()) {
+    budget.push_back(item.AsString());
+  }
+  ASSERT_FALSE(budget.empty());
+  const auto dir = testing::SourceDir() / "ablations";
+  for (const std::string& name : ListAblationSpecs(dir)) {
+    const AblationSpec spec = LoadAblationSpec(name, dir);
+    for (const AblationVariant& variant : spec.variants) {
+      std::vector<std::string> overrides = budget;
+      overrides.insert(
+          overrides.end(), variant.overrides.begin(), variant.overrides.end());
+      EXPECT_EQ(error("train", overrides), "")
+          << name << ", variant " << variant.name;
+    }
+    for (const AblationTest& test : spec.tests) {
+      EXPECT_EQ(error("corrupt", test.corrupt_overrides), "")
+          << name << ", test " << test.name;
+      EXPECT_EQ(error("eval", test.eval_overrides), "")
+          << name << ", test " << test.name;
+    }
+  }
+  // The check can fail: a misspelt key does not compose.
+  EXPECT_THAT(error("train", {"synth.marker_rings=0"}),
+              HasSubstr("synth.marker_rings"));
 }
 
 }  // namespace
