@@ -6,13 +6,17 @@
 #include "framework/core/file.h"
 #include "framework/testing/testing.h"
 
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <chrono>
 #include <fcntl.h>
 #include <filesystem>
+#include <regex>
 #include <signal.h>
+#include <sstream>
 #include <string>
+#include <string_view>
 #include <sys/wait.h>
 #include <thread>
 #include <unistd.h>
@@ -43,20 +47,31 @@ std::string Quote(const std::string& s) {
 
 std::string ConfigsDir() { return (testing::SourceDir() / "configs").string(); }
 
-/// Runs `soma args...` in `cwd`, capturing stdout and stderr.
-CommandResult RunSoma(const fs::path& cwd,
-                      const std::vector<std::string>& args) {
-  std::string command =
-      "cd " + Quote(cwd.string()) + " && " + Quote(SOMA_BINARY);
-  for (const std::string& arg : args) command += " " + Quote(arg);
+/// Runs a shell command in `cwd`, capturing stdout and stderr.
+CommandResult RunShell(const fs::path& cwd, const std::string& command) {
   const fs::path out = cwd / "stdout.txt", err = cwd / "stderr.txt";
-  command += " > " + Quote(out.string()) + " 2> " + Quote(err.string());
-  const int status = std::system(command.c_str());
+  const std::string line = fmt::format("cd {} && {} > {} 2> {}",
+                                       Quote(cwd.string()),
+                                       command,
+                                       Quote(out.string()),
+                                       Quote(err.string()));
+  const int status = std::system(line.c_str());
   CommandResult result;
   result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
   result.out = ReadFile(out);
   result.err = ReadFile(err);
   return result;
+}
+
+/// Runs `soma args...` in `cwd`, capturing stdout and stderr.
+CommandResult RunSoma(const fs::path& cwd,
+                      const std::vector<std::string>& args) {
+  std::string command = Quote(SOMA_BINARY);
+  for (const std::string& arg : args) {
+    command += ' ';
+    command += Quote(arg);
+  }
+  return RunShell(cwd, command);
 }
 
 ConfigNode LoadYaml(const fs::path& path) {
@@ -443,6 +458,64 @@ TEST(Cli, MandatoryValueReadNamesTheFullKey) {
   // metrics.
   EXPECT_FALSE(fs::exists(dir / "out/metrics.yaml"));
   EXPECT_TRUE(fs::exists(dir / "out/error.txt"));
+}
+
+/// The `./build/soma` command lines of the fenced code blocks of a markdown
+/// file, continuation lines joined and `<placeholder>`s replaced by a word.
+std::vector<std::string> DocumentedSomaCommands(const fs::path& markdown) {
+  static const std::regex placeholder("<[^>]*>");
+  std::vector<std::string> commands;
+  std::istringstream in(ReadFile(markdown));
+  bool fenced = false;
+  std::string line, command;
+  while (std::getline(in, line)) {
+    if (line.rfind("```", 0) == 0) {
+      fenced = !fenced;
+      continue;
+    }
+    if (!fenced) continue;
+    if (command.empty() && line.rfind("./build/soma ", 0) != 0) continue;
+    const bool continued = !line.empty() && line.back() == '\\';
+    command += continued ? line.substr(0, line.size() - 1) : line;
+    if (!continued) {
+      commands.push_back(std::regex_replace(command, placeholder, "x"));
+      command.clear();
+    }
+  }
+  return commands;
+}
+
+/// Runs a documented command line through bash with `./build/soma` bound to
+/// `soma ... --cfg job`: it parses and composes, and runs nothing.
+CommandResult ComposeDocumentedCommand(const fs::path& cwd,
+                                       const std::string& line) {
+  const std::string_view prefix = "./build/soma";
+  const std::string script =
+      fmt::format("soma() {{ {} \"$@\" -cp {} --cfg job; }}; soma{}",
+                  Quote(SOMA_BINARY),
+                  Quote(ConfigsDir()),
+                  line.substr(prefix.size()));
+  return RunShell(cwd, "bash -c " + Quote(script));
+}
+
+// Every `soma` command the README shows parses and composes as written, so
+// the documentation cannot drift from the command line (a list override with
+// unquoted `=` in its items once slipped into it).
+TEST(Cli, EveryReadmeCommandComposes) {
+  const auto dir = testing::CreateTestDir();
+  const std::vector<std::string> commands =
+      DocumentedSomaCommands(testing::SourceDir() / "README.md");
+  EXPECT_GE(commands.size(), 30u);  // the extraction found the README's
+  for (const std::string& line : commands) {
+    const CommandResult r = ComposeDocumentedCommand(dir, line);
+    EXPECT_EQ(r.exit_code, 0) << line << "\n" << r.err;
+  }
+  EXPECT_FALSE(fs::exists(dir / "results"));  // --cfg never writes
+  // The check can fail: the slip it guards against does not compose.
+  const CommandResult bad = ComposeDocumentedCommand(
+      dir, "./build/soma reproduce table5 \"task.budget=[scale=cpu]\"");
+  EXPECT_NE(bad.exit_code, 0);
+  EXPECT_NE(bad.err.find("task.budget"), std::string::npos) << bad.err;
 }
 
 }  // namespace
