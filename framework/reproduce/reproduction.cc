@@ -8,12 +8,14 @@
 #include "framework/core/process.h"
 #include "framework/core/progress.h"
 #include "framework/core/random.h"
+#include "framework/core/timer.h"
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
 
 #include <algorithm>
 #include <deque>
+#include <map>
 #include <set>
 #include <sstream>
 
@@ -282,6 +284,32 @@ void WriteCommandsScript(const ReproductionPlan& plan,
   WriteFileAtomic(plan.dir / "commands.sh", sh.str());
 }
 
+double EstimateSecondsLeft(std::vector<double> finished_model_s,
+                           const std::vector<double>& running_elapsed_s,
+                           size_t queued_models,
+                           int jobs) {
+  if (finished_model_s.empty() || jobs < 1) return -1;
+  const auto middle = finished_model_s.begin() + finished_model_s.size() / 2;
+  std::nth_element(finished_model_s.begin(), middle, finished_model_s.end());
+  double median = *middle;
+  if (finished_model_s.size() % 2 == 0) {
+    median =
+        0.5 * (median + *std::max_element(finished_model_s.begin(), middle));
+  }
+  // Each slot's time until it is free: first what its running model has
+  // left, then the queued models, each to the slot free first.
+  std::vector<double> free_at(
+      std::max<size_t>(static_cast<size_t>(jobs), running_elapsed_s.size()),
+      0.0);
+  for (size_t k = 0; k < running_elapsed_s.size(); ++k) {
+    free_at[k] = std::max(median - running_elapsed_s[k], 0.0);
+  }
+  for (size_t k = 0; k < queued_models; ++k) {
+    *std::min_element(free_at.begin(), free_at.end()) += median;
+  }
+  return *std::max_element(free_at.begin(), free_at.end());
+}
+
 ReproductionRun RunReproduction(
     const ReproductionPlan& plan,
     const ReproductionOptions& options,
@@ -321,6 +349,9 @@ ReproductionRun RunReproduction(
     size_t model = 0;
     size_t command = 0;
   };
+  // Wall time of each model this run, for the estimate of the time left.
+  std::map<size_t, Timer> model_timers;
+  std::vector<double> finished_model_s;
   std::deque<size_t> queue;
   for (size_t i = 0; i < plan.models.size(); ++i) {
     const PlannedModel& m = plan.models[i];
@@ -375,11 +406,33 @@ ReproductionRun RunReproduction(
     ledger.Save();
     if (ok) {
       ++run.models_done;
+      if (const auto timer = model_timers.find(i);
+          timer != model_timers.end()) {
+        finished_model_s.push_back(timer->second.ElapsedSeconds());
+      }
     } else {
       ++run.models_failed;
       run.errors.push_back(error);
       SOMA_LOG(ERROR, "reproduce: {}", error);
     }
+    model_timers.erase(i);
+    std::vector<double> running_elapsed_s;
+    for (const auto& [model, timer] : model_timers) {
+      running_elapsed_s.push_back(timer.ElapsedSeconds());
+    }
+    const double left = EstimateSecondsLeft(
+        finished_model_s, running_elapsed_s, queue.size(), options.jobs);
+    const bool more = !running_elapsed_s.empty() || !queue.empty();
+    SOMA_LOG(INFO,
+             "reproduce: {} of {} models done{}",
+             run.models_done,
+             plan.models.size(),
+             left < 0 || !more
+                 ? std::string()
+                 : fmt::format("; about {} left ({} running, {} queued)",
+                               FormatDuration(left),
+                               running_elapsed_s.size(),
+                               queue.size()));
     if (on_model_finished) on_model_finished();
   };
   auto fill = [&]() {
@@ -390,6 +443,7 @@ ReproductionRun RunReproduction(
       entry.status = JobStatus::kRunning;
       ++entry.attempts;
       ledger.Save();
+      model_timers.emplace(i, Timer());
       if (!start_next({i, 0})) finish_model(i, true, "");
     }
   };

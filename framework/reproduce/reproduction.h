@@ -102,6 +102,17 @@ ReproductionRun RunReproduction(
     bool progress,
     const std::function<void()>& on_model_finished = {});
 
+/// The wall time a reproduction has left, estimated from the models finished
+/// so far: with the median of their times as every model's time, each of the
+/// `jobs` slots first finishes its running model (the median less the time
+/// it has run, at least 0), then the queued models go, one by one, to the
+/// slot free first; the answer is when the last slot is free. Negative
+/// (unknown) until a model has finished.
+double EstimateSecondsLeft(std::vector<double> finished_model_s,
+                           const std::vector<double>& running_elapsed_s,
+                           size_t queued_models,
+                           int jobs);
+
 /// Reads the finished evaluations: one CellResult per (planned variant, test,
 /// metric), plus empty cells for skipped variants.
 std::vector<CellResult> CollectResults(const AblationSpec& spec,

@@ -284,6 +284,23 @@ TEST_F(ReproductionTest, CommandsScriptListsEveryCommandQuoted) {
                         "normalization=log_softmax seed=1 hydra.run.dir="));
 }
 
+TEST(EstimateSecondsLeft, MedianModelTimeSharedBySlots) {
+  // Unknown until a model has finished.
+  EXPECT_LT(EstimateSecondsLeft({}, {10.0}, 3, 2), 0);
+  // Median 100 s (an outlier does not move it); 4 queued models on 2 slots.
+  EXPECT_DOUBLE_EQ(EstimateSecondsLeft({90.0, 100.0, 5000.0}, {}, 4, 2), 200);
+  // Even count: the mean of the two middle times.
+  EXPECT_DOUBLE_EQ(EstimateSecondsLeft({80.0, 120.0}, {}, 2, 2), 100);
+  // A running model counts for what it has left, never less than 0; the
+  // last slot to be free decides.
+  EXPECT_DOUBLE_EQ(EstimateSecondsLeft({100.0}, {30.0, 150.0}, 0, 2), 70);
+  EXPECT_DOUBLE_EQ(EstimateSecondsLeft({100.0}, {30.0, 150.0}, 1, 2), 100);
+  EXPECT_DOUBLE_EQ(EstimateSecondsLeft({100.0}, {30.0}, 3, 2), 200);
+  // One model left does not run faster with more slots.
+  EXPECT_DOUBLE_EQ(EstimateSecondsLeft({100.0}, {}, 1, 4), 100);
+  EXPECT_DOUBLE_EQ(EstimateSecondsLeft({100.0}, {}, 0, 2), 0);
+}
+
 TEST(TrainingCurves, OneRowPerEpochOfEveryStartedModel) {
   const fs::path dir = testing::CreateTestDir();
   ReproductionPlan plan;
