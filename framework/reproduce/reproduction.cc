@@ -349,7 +349,8 @@ ReproductionRun RunReproduction(
     size_t model = 0;
     size_t command = 0;
   };
-  // Wall time of each model this run, for the estimate of the time left.
+  // Wall time of each model trained in this run, for the estimate of the
+  // time left.
   std::map<size_t, Timer> model_timers;
   std::vector<double> finished_model_s;
   std::deque<size_t> queue;
@@ -443,7 +444,11 @@ ReproductionRun RunReproduction(
       entry.status = JobStatus::kRunning;
       ++entry.attempts;
       ledger.Save();
-      model_timers.emplace(i, Timer());
+      // A model whose training is done has only its quick evaluations left:
+      // it would pull the median model time towards 0.
+      if (!plan.models[i].commands.front().Done()) {
+        model_timers.emplace(i, Timer());
+      }
       if (!start_next({i, 0})) finish_model(i, true, "");
     }
   };
