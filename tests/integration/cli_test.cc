@@ -505,7 +505,7 @@ TEST(Cli, EveryReadmeCommandComposes) {
   const auto dir = testing::CreateTestDir();
   const std::vector<std::string> commands =
       DocumentedSomaCommands(testing::SourceDir() / "README.md");
-  EXPECT_GE(commands.size(), 30u);  // the extraction found the README's
+  EXPECT_GE(commands.size(), 30u);  // the extraction found them
   for (const std::string& line : commands) {
     const CommandResult r = ComposeDocumentedCommand(dir, line);
     EXPECT_EQ(r.exit_code, 0) << line << "\n" << r.err;
