@@ -289,13 +289,12 @@ double EstimateSecondsLeft(std::vector<double> finished_model_s,
                            size_t queued_models,
                            int jobs) {
   if (finished_model_s.empty() || jobs < 1) return -1;
-  const auto middle = finished_model_s.begin() + finished_model_s.size() / 2;
-  std::nth_element(finished_model_s.begin(), middle, finished_model_s.end());
-  double median = *middle;
-  if (finished_model_s.size() % 2 == 0) {
-    median =
-        0.5 * (median + *std::max_element(finished_model_s.begin(), middle));
-  }
+  std::sort(finished_model_s.begin(), finished_model_s.end());
+  const size_t n = finished_model_s.size();
+  const double median =
+      n % 2 == 1
+          ? finished_model_s[n / 2]
+          : 0.5 * (finished_model_s[n / 2 - 1] + finished_model_s[n / 2]);
   // Each slot's time until it is free: first what its running model has
   // left, then the queued models, each to the slot free first.
   std::vector<double> free_at(
