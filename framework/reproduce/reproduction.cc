@@ -158,7 +158,9 @@ bool PlannedModel::Done() const {
 ReproductionPlan PlanReproduction(const AblationSpec& spec,
                                   const ReproductionOptions& options) {
   ReproductionPlan plan;
-  plan.dir = options.root / spec.name;
+  // Keyed by the budget: a reproduction under another budget (e.g. another
+  // marker layout) trains other models and keeps its own ledger.
+  plan.dir = options.root / (spec.name + "-" + Hash8(options.budget));
   plan.seeds = options.seeds > 0 ? options.seeds : spec.seeds;
   const std::string exe = options.executable.string();
 
@@ -479,6 +481,33 @@ ReproductionRun RunReproduction(
   bar.Finish();
   for (const LedgerEntry& e : ledger.entries()) run.compute_s += e.wall_time_s;
   return run;
+}
+
+bool AdoptUnkeyedLedger(const ReproductionPlan& plan,
+                        const fs::path& unkeyed_dir) {
+  if (fs::exists(plan.dir) || !fs::exists(unkeyed_dir / "jobs.yaml")) {
+    return false;
+  }
+  std::set<std::string> hashes;
+  for (const PlannedModel& m : plan.models) {
+    hashes.insert(m.hash + fmt::format("/{}", m.seed));
+  }
+  const Ledger ledger = Ledger::Load(unkeyed_dir);
+  const std::vector<LedgerEntry>& entries = ledger.entries();
+  if (std::none_of(entries.begin(), entries.end(), [&](const LedgerEntry& e) {
+        return hashes.count(e.config_hash) > 0;
+      })) {
+    return false;
+  }
+  std::error_code error;
+  fs::rename(unkeyed_dir, plan.dir, error);
+  if (error) {
+    throw IoError(fmt::format("{}: could not move the ledger to {}: {}",
+                              unkeyed_dir.string(),
+                              plan.dir.string(),
+                              error.message()));
+  }
+  return true;
 }
 
 ReproductionRun SummarizeLedger(const ReproductionPlan& plan) {

@@ -16,8 +16,13 @@
 //       tests/<take>_<setting>_<mode>/label/      `soma label` run dir
 //       tests/<take>_<setting>_<mode>/eval/       `soma eval` run dir
 //   <root>/testdata/<take>_<setting>_seed<s>/   a `soma corrupt` run dir
-//   <root>/<name>/jobs.yaml, jobs.csv            the ledger (one job per model)
-//   <root>/<name>/commands.sh                    every command, in order
+//   <root>/<name>-<budget hash>/jobs.yaml, jobs.csv   the ledger (one job
+//                                                     per model)
+//   <root>/<name>-<budget hash>/commands.sh           every command, in order
+//
+// The ledger is keyed by the budget too: the same table under another budget
+// (another layout, scale or length) is another set of models with its own
+// ledger, and running it leaves the first one's records alone.
 #pragma once
 
 #include "framework/reproduce/ablation_spec.h"
@@ -69,7 +74,7 @@ struct PlannedModel {
 };
 
 struct ReproductionPlan {
-  std::filesystem::path dir;  // <root>/<name>
+  std::filesystem::path dir;  // <root>/<name>-<hash of the budget>
   std::vector<PlannedCommand> corrupt;
   std::vector<PlannedModel> models;  // skipped variants are not planned
   int seeds = 0;
@@ -125,6 +130,14 @@ std::vector<CellResult> CollectResults(const AblationSpec& spec,
 /// atomically. Models without a metrics.csv are left out. Returns the rows.
 int WriteTrainingCurvesCsv(const ReproductionPlan& plan,
                            const std::filesystem::path& path);
+
+/// Ledgers used to live in `<root>/<name>`, whatever the budget. Moves such a
+/// directory (`unkeyed_dir`) to `plan.dir` if `plan.dir` does not exist yet
+/// and the old ledger records at least one of the plan's models (same
+/// training overrides and seed), so that its wall times and attempts are
+/// kept. Returns whether it moved.
+bool AdoptUnkeyedLedger(const ReproductionPlan& plan,
+                        const std::filesystem::path& unkeyed_dir);
 
 /// Models whose every command is done, and the summed wall time recorded in
 /// the ledger.

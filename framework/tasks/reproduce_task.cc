@@ -65,6 +65,15 @@ class ReproduceTask : public Task {
       }
     }
     const ReproductionPlan plan = PlanReproduction(spec, reproduction);
+    if (const fs::path unkeyed = reproduction.root / spec.name;
+        AdoptUnkeyedLedger(plan, unkeyed)) {
+      SOMA_LOG(INFO,
+               "reproduce {}: moved the ledger {} to {} (ledgers are keyed by "
+               "task.budget now)",
+               spec.name,
+               unkeyed.string(),
+               plan.dir.string());
+    }
     WriteCommandsScript(plan, fs::current_path());
     SOMA_LOG(INFO,
              "reproduce {}: {} variants x {} seeds, {} tests; commands in {}",

@@ -51,6 +51,19 @@ void WriteCut(const fs::path& from, int frames, const fs::path& to) {
 
 /// `soma reproduce <name>` on `dir`'s ablations/ and data/ with tiny models
 /// (1 epoch of 64 frames); the run dir is the last argument.
+/// The one ledger directory of reproduction `name` under `root`,
+/// `<name>-<hash of the budget>`.
+fs::path LedgerDir(const fs::path& root, const std::string& name) {
+  std::vector<fs::path> dirs;
+  for (const auto& entry : fs::directory_iterator(root)) {
+    if (entry.path().filename().string().rfind(name + "-", 0) == 0) {
+      dirs.push_back(entry.path());
+    }
+  }
+  EXPECT_EQ(dirs.size(), 1u) << root.string();
+  return dirs.empty() ? root / name : dirs[0];
+}
+
 std::vector<std::string> TinyReproduceArgs(const fs::path& dir,
                                            const std::string& name) {
   return {"reproduce",
@@ -93,14 +106,15 @@ TEST(ReproduceTask, RunsTrainsEvaluatesAndResumes) {
   EXPECT_THAT(ReadFile(dir / "results/mini_claims.csv"),
               HasSubstr("mini,Sinkhorn beats Log-Softmax,base − lsm > 0,"
                         "greater,acc,base,short,lsm,short,,"));
-  const Ledger ledger = Ledger::Load(dir / "root/mini");
+  const fs::path ledger_dir = LedgerDir(dir / "root", "mini");
+  const Ledger ledger = Ledger::Load(ledger_dir);
   ASSERT_EQ(ledger.entries().size(), 4u);
   for (const LedgerEntry& e : ledger.entries()) {
     EXPECT_EQ(e.status, JobStatus::kDone) << e.dir;
     EXPECT_GT(e.metrics.at("short/acc_mean"), 0.0) << e.dir;
     EXPECT_LE(e.metrics.at("short/acc_mean"), 1.0) << e.dir;
   }
-  EXPECT_TRUE(fs::exists(dir / "root/mini/commands.sh"));
+  EXPECT_TRUE(fs::exists(ledger_dir / "commands.sh"));
 
   // Resuming: every command is done, nothing runs again.
   const auto stamp =
@@ -146,7 +160,7 @@ claims: []
   std::string err;
   ASSERT_EQ(testing::RunSomaTask(dir, args, &err), 0) << err;
   EXPECT_THAT(ReadFile(dir / "results/layouts.md"), HasSubstr("PARTIAL"));
-  Ledger ledger = Ledger::Load(dir / "root/layouts");
+  Ledger ledger = Ledger::Load(LedgerDir(dir / "root", "layouts"));
   ASSERT_EQ(ledger.entries().size(), 2u);
   EXPECT_EQ(ledger.entries()[0].status, JobStatus::kDone);
   EXPECT_EQ(ledger.entries()[1].status, JobStatus::kPending);
@@ -158,7 +172,7 @@ claims: []
   args.erase(args.end() - 2);  // every variant
   ASSERT_EQ(testing::RunSomaTask(dir, args, &err), 0) << err;
   EXPECT_THAT(ReadFile(dir / "results/layouts.md"), Not(HasSubstr("PARTIAL")));
-  ledger = Ledger::Load(dir / "root/layouts");
+  ledger = Ledger::Load(LedgerDir(dir / "root", "layouts"));
   const LedgerEntry& subset = ledger.entries()[1];
   ASSERT_EQ(subset.status, JobStatus::kDone) << subset.error;
   // The subset model knows 39 labels: its output has 39 label columns, and

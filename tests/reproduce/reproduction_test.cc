@@ -130,6 +130,51 @@ TEST_F(ReproductionTest, PlanIsSeedMajorAndSharesModelsByOverrides) {
             plan.models[0].dir);
 }
 
+TEST_F(ReproductionTest, EachBudgetKeepsItsOwnLedger) {
+  const ReproductionPlan plan = PlanReproduction(Spec(), options_);
+  EXPECT_EQ(plan.dir.parent_path(), options_.root);
+  EXPECT_THAT(plan.dir.filename().string(), ::testing::StartsWith("demo-"));
+  EXPECT_EQ(PlanReproduction(Spec(), options_).dir, plan.dir);
+  ReproductionOptions other = options_;
+  other.budget = {"scale=cpu", "train.max_epochs=3"};
+  const ReproductionPlan other_plan = PlanReproduction(Spec(), other);
+  ASSERT_NE(other_plan.dir, plan.dir);
+
+  // Running the table under another budget leaves the first one's ledger
+  // (its wall times and attempts) as it was.
+  RunReproduction(plan, options_, false);
+  const std::string ledger = ReadFile(plan.dir / "jobs.yaml");
+  RunReproduction(other_plan, other, false);
+  EXPECT_EQ(ReadFile(plan.dir / "jobs.yaml"), ledger);
+  EXPECT_EQ(Ledger::Load(other_plan.dir).entries().size(), 4u);
+}
+
+TEST_F(ReproductionTest, AnUnkeyedLedgerOfThePlanIsAdoptedOnce) {
+  const ReproductionPlan plan = PlanReproduction(Spec(), options_);
+  // A ledger written where ledgers used to live, <root>/<name>.
+  ReproductionPlan unkeyed = plan;
+  unkeyed.dir = options_.root / "demo";
+  RunReproduction(unkeyed, options_, false);
+  Calls();
+  const std::string ledger = ReadFile(unkeyed.dir / "jobs.yaml");
+
+  // Not another budget's plan.
+  ReproductionOptions other = options_;
+  other.budget = {"scale=cpu", "train.max_epochs=3"};
+  const ReproductionPlan other_plan = PlanReproduction(Spec(), other);
+  EXPECT_FALSE(AdoptUnkeyedLedger(other_plan, unkeyed.dir));
+  EXPECT_FALSE(fs::exists(other_plan.dir));
+
+  ASSERT_TRUE(AdoptUnkeyedLedger(plan, unkeyed.dir));
+  EXPECT_FALSE(fs::exists(unkeyed.dir));
+  EXPECT_EQ(ReadFile(plan.dir / "jobs.yaml"), ledger);
+  EXPECT_FALSE(AdoptUnkeyedLedger(plan, unkeyed.dir));
+  // Everything is done: nothing runs, and the adopted records stay.
+  EXPECT_EQ(RunReproduction(plan, options_, false).models_done, 4);
+  EXPECT_TRUE(Calls().empty());
+  EXPECT_EQ(Ledger::Load(plan.dir).entries()[0].attempts, 1);
+}
+
 TEST_F(ReproductionTest, TestOverridesReachTheirCommandsAndDirectories) {
   const AblationSpec spec = ParseAblationSpec(ParseYaml(R"(
 name: layouts
