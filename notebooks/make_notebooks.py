@@ -64,7 +64,9 @@ NOTEBOOKS = {
         "One model per ghost distribution with up to 60 ghosts per frame (spherical Gaussian, uniform in "
         "[-2, 2] m, skewed Gaussian) next to the base (up to 3). Plot: validation accuracy per epoch "
         "(results/fig_c3_curves.csv, mean ± seed std; synthetic frames with each model's training noise) and "
-        "the accuracy of every model on the real HDM05 take (B+C+G). The paper shows curves only.",
+        "the accuracy of every model on the real HDM05 take, corrupted as B+C+G and with up to 60 Gaussian "
+        "ghosts (does a 60-ghost model fail on real data, or on the shift from 60 ghosts to 3?). The paper "
+        "shows curves only.",
     ),
     "claims": (
         "The paper's claims, across every table",
