@@ -94,6 +94,34 @@ AblationTest ParseTest(const std::string& name, const ConfigNode& node) {
   return t;
 }
 
+/// A string (always printed) or a map {text, if_budget_sets,
+/// unless_budget_sets}.
+AblationDifference ParseDifference(const ConfigNode& node) {
+  AblationDifference d;
+  if (node.IsScalar()) {
+    d.text = node.AsString();
+    return d;
+  }
+  ConfigReader reader(node);
+  reader.Require("text", &d.text);
+  reader.Read("if_budget_sets", &d.if_budget_sets);
+  reader.Read("unless_budget_sets", &d.unless_budget_sets);
+  reader.Check("unless_budget_sets",
+               d.if_budget_sets.empty() || d.unless_budget_sets.empty(),
+               "at most one of if_budget_sets and unless_budget_sets");
+  reader.Finish();
+  return d;
+}
+
+/// `budget` has an override `<key>=...` or `<key>.<sub>=...`.
+bool BudgetSets(const std::vector<std::string>& budget,
+                const std::string& key) {
+  return std::any_of(budget.begin(), budget.end(), [&](const std::string& o) {
+    return o.size() > key.size() && o.compare(0, key.size(), key) == 0 &&
+           (o[key.size()] == '=' || o[key.size()] == '.');
+  });
+}
+
 AblationClaim ParseClaim(const ConfigNode& node,
                          const std::set<std::string>& variants,
                          const std::set<std::string>& tests) {
@@ -152,6 +180,15 @@ const AblationTest& AblationSpec::Test(const std::string& t) const {
   throw InternalError(fmt::format("ablation {}: no test '{}'", name, t));
 }
 
+bool AblationDifference::AppliesTo(
+    const std::vector<std::string>& budget) const {
+  if (!if_budget_sets.empty()) return BudgetSets(budget, if_budget_sets);
+  if (!unless_budget_sets.empty()) {
+    return !BudgetSets(budget, unless_budget_sets);
+  }
+  return true;
+}
+
 AblationSpec ParseAblationSpec(const ConfigNode& node,
                                const std::string& source) {
   if (!node.IsMap()) {
@@ -167,7 +204,16 @@ AblationSpec ParseAblationSpec(const ConfigNode& node,
   reader.Read("description", &spec.description);
   reader.Read("seeds", &spec.seeds);
   reader.Check("seeds", spec.seeds >= 1, "seeds >= 1");
-  reader.Read("differences", &spec.differences);
+  if (const ConfigNode* differences = reader.Child("differences");
+      differences != nullptr && !differences->IsNull()) {
+    reader.Check("differences",
+                 differences->IsList(),
+                 "a list of strings or {text, if_budget_sets | "
+                 "unless_budget_sets} maps");
+    for (const ConfigNode& d : differences->items()) {
+      spec.differences.push_back(ParseDifference(d));
+    }
+  }
 
   std::set<std::string> test_names;
   const ConfigNode* tests = reader.Child("tests");

@@ -80,13 +80,27 @@ struct AblationClaim {
   std::string paper_note;  // e.g. "read off Fig. C.1"
 };
 
+/// A difference from the paper's setup, printed in the report. Some hold
+/// only under the default budget: "trains on the cmu41 layout" is false for
+/// a run whose budget sets `layout`.
+struct AblationDifference {
+  std::string text;
+  /// Non-empty: printed only if the budget sets this key (an override
+  /// `<key>=...` or `<key>.<sub>=...`).
+  std::string if_budget_sets;
+  /// Non-empty: printed only if the budget does not set this key.
+  std::string unless_budget_sets;
+
+  bool AppliesTo(const std::vector<std::string>& budget) const;
+};
+
 struct AblationSpec {
   std::string name;
   std::string title;
   std::string paper_ref;    // e.g. "SOMA (ICCV 2021), Table 5"
   std::string description;  // what is measured, in a sentence or two
   int seeds = 3;
-  std::vector<std::string> differences;  // from the paper's setup
+  std::vector<AblationDifference> differences;  // from the paper's setup
   std::vector<AblationVariant> variants;
   std::vector<AblationTest> tests;
   std::vector<AblationClaim> claims;

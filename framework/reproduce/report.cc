@@ -365,9 +365,13 @@ void WriteResultsMarkdown(const AblationSpec& spec,
                         verdict);
     }
   }
-  if (!spec.differences.empty()) {
+  std::vector<std::string> differences;
+  for (const AblationDifference& d : spec.differences) {
+    if (d.AppliesTo(context.budget)) differences.push_back(d.text);
+  }
+  if (!differences.empty()) {
     md << "\n## Differences from the paper's setup\n\n";
-    for (const std::string& d : spec.differences) md << "- " << d << "\n";
+    for (const std::string& d : differences) md << "- " << d << "\n";
   }
   md << "\nEvery number above comes from the runs under the reproduction's "
         "root directory (`jobs.yaml` there lists each training with its "

@@ -20,7 +20,10 @@ name: demo
 title: "Demo table"
 paper_ref: "SOMA Table 5"
 seeds: 2
-differences: ["smaller model"]
+differences:
+  - "smaller model"
+  - {text: "cmu41 layout", unless_budget_sets: layout}
+  - {text: "fitted layout", if_budget_sets: layout}
 tests:
   hdm05: {label: "HDM05", take: c3d/a.c3d, setting: OC_05_G_03_BT_00}
   occ5: {take: c3d/a.c3d, setting: OCE_05_G_00_BT_00, tracklet: true,
@@ -56,7 +59,10 @@ TEST(AblationSpecTest, ParsesEveryField) {
   const AblationSpec spec = Parse(kSpec);
   EXPECT_EQ(spec.name, "demo");
   EXPECT_EQ(spec.seeds, 2);
-  EXPECT_THAT(spec.differences, ElementsAre("smaller model"));
+  ASSERT_EQ(spec.differences.size(), 3u);
+  EXPECT_EQ(spec.differences[0].text, "smaller model");
+  EXPECT_EQ(spec.differences[1].unless_budget_sets, "layout");
+  EXPECT_EQ(spec.differences[2].if_budget_sets, "layout");
   ASSERT_EQ(spec.tests.size(), 2u);
   EXPECT_EQ(spec.Test("hdm05").setting, "OC_05_G_03_BT_00");
   EXPECT_FALSE(spec.Test("hdm05").tracklet);
@@ -86,6 +92,26 @@ TEST(AblationSpecTest, ParsesEveryField) {
   EXPECT_EQ(spec.claims[0].kind, "greater");
   EXPECT_EQ(spec.claims[1].worse_test, "occ5");
   EXPECT_DOUBLE_EQ(*spec.claims[1].paper_gap, 0.7);
+}
+
+TEST(AblationSpecTest, ConditionalDifferencesFollowTheBudget) {
+  const AblationSpec spec = Parse(kSpec);
+  const auto texts = [&](const std::vector<std::string>& budget) {
+    std::vector<std::string> out;
+    for (const AblationDifference& d : spec.differences) {
+      if (d.AppliesTo(budget)) out.push_back(d.text);
+    }
+    return out;
+  };
+  EXPECT_THAT(texts({"scale=cpu", "train.max_epochs=20"}),
+              ElementsAre("smaller model", "cmu41 layout"));
+  EXPECT_THAT(texts({"scale=cpu", "layout=file", "layout.path=x.json"}),
+              ElementsAre("smaller model", "fitted layout"));
+  EXPECT_THAT(texts({"layout.exclude=[RBAC]"}),
+              ElementsAre("smaller model", "fitted layout"));
+  // Only the key itself: `layouts=...` or `layout_seed=...` do not set it.
+  EXPECT_THAT(texts({"layouts=[a]", "layout_seed=3"}),
+              ElementsAre("smaller model", "cmu41 layout"));
 }
 
 TEST(AblationSpecTest, BadSpecsAreOneLineConfigErrors) {
@@ -118,6 +144,11 @@ TEST(AblationSpecTest, BadSpecsAreOneLineConfigErrors) {
       {"label: \"Base\"",
        "label: \"Base\"\n    tests: [occ5]",
        "a test this variant is evaluated on"},
+      {"if_budget_sets: layout}",
+       "if_budget_sets: layout, unless_budget_sets: scale}",
+       "at most one of if_budget_sets and unless_budget_sets"},
+      {"if_budget_sets: layout}", "if_budget: layout}", "unknown key"},
+      {"differences:", "differences: 3\nx:", "a list of strings"},
   };
   for (const Case& c : cases) {
     const std::string message =

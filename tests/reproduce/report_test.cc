@@ -21,7 +21,9 @@ AblationSpec Spec() {
 name: demo
 title: "Demo table"
 seeds: 3
-differences: ["procedural body"]
+differences:
+  - "procedural body"
+  - {text: "default layout", unless_budget_sets: layout}
 tests:
   t0: {label: "zero", take: a.c3d, setting: OCE_00_G_00_BT_00}
   t5: {label: "five", take: a.c3d, setting: OCE_05_G_00_BT_00}
@@ -235,6 +237,14 @@ TEST(ReportTest, MarkdownMarksPartialTablesAndShowsClaims) {
   EXPECT_THAT(md, HasSubstr("base@t0 − base@t5"));
   EXPECT_THAT(md, HasSubstr("+1.00 (Fig. 9) | — | **not run** |"));
   EXPECT_THAT(md, HasSubstr("- procedural body"));
+  EXPECT_THAT(md, HasSubstr("- default layout"));
+
+  // A difference the budget undoes is not printed.
+  ReportContext fitted = context;
+  fitted.budget = {"scale=cpu", "layout=file"};
+  WriteResultsMarkdown(Spec(), Cells(), fitted, dir / "fitted.md");
+  EXPECT_THAT(ReadFile(dir / "fitted.md"), HasSubstr("- procedural body"));
+  EXPECT_THAT(ReadFile(dir / "fitted.md"), Not(HasSubstr("default layout")));
 
   context.models_done = 9;
   WriteResultsMarkdown(Spec(), Cells(), context, dir / "demo.md");
