@@ -155,6 +155,10 @@ bool PlannedModel::Done() const {
                      [](const PlannedCommand& c) { return c.Done(); });
 }
 
+std::string PlannedModel::LedgerKey() const {
+  return fmt::format("{}/{}", hash, seed);
+}
+
 ReproductionPlan PlanReproduction(const AblationSpec& spec,
                                   const ReproductionOptions& options) {
   ReproductionPlan plan;
@@ -358,12 +362,12 @@ ReproductionRun RunReproduction(
   for (size_t i = 0; i < plan.models.size(); ++i) {
     const PlannedModel& m = plan.models[i];
     LedgerEntry& entry = ledger.Entry(static_cast<int>(i));
-    if (entry.config_hash != m.hash + fmt::format("/{}", m.seed)) {
+    if (entry.config_hash != m.LedgerKey()) {
       entry = LedgerEntry{};
       entry.num = static_cast<int>(i);
     }
     entry.overrides = m.train_overrides;
-    entry.config_hash = m.hash + fmt::format("/{}", m.seed);
+    entry.config_hash = m.LedgerKey();
     entry.dir = m.dir.string();
     if (m.Done()) {
       entry.status = JobStatus::kDone;
@@ -490,7 +494,7 @@ bool AdoptUnkeyedLedger(const ReproductionPlan& plan,
   }
   std::set<std::string> hashes;
   for (const PlannedModel& m : plan.models) {
-    hashes.insert(m.hash + fmt::format("/{}", m.seed));
+    hashes.insert(m.LedgerKey());
   }
   const Ledger ledger = Ledger::Load(unkeyed_dir);
   const std::vector<LedgerEntry>& entries = ledger.entries();

@@ -71,6 +71,8 @@ struct PlannedModel {
   std::map<std::string, std::filesystem::path> eval_dirs;  // test -> eval run
   /// Every command is done.
   bool Done() const;
+  /// The model's key in the ledger: "<hash>/<seed>".
+  std::string LedgerKey() const;
 };
 
 struct ReproductionPlan {

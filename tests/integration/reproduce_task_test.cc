@@ -49,8 +49,6 @@ void WriteCut(const fs::path& from, int frames, const fs::path& to) {
   WriteC3d(to, c3d);
 }
 
-/// `soma reproduce <name>` on `dir`'s ablations/ and data/ with tiny models
-/// (1 epoch of 64 frames); the run dir is the last argument.
 /// The one ledger directory of reproduction `name` under `root`,
 /// `<name>-<hash of the budget>`.
 fs::path LedgerDir(const fs::path& root, const std::string& name) {
@@ -64,6 +62,8 @@ fs::path LedgerDir(const fs::path& root, const std::string& name) {
   return dirs.empty() ? root / name : dirs[0];
 }
 
+/// `soma reproduce <name>` on `dir`'s ablations/ and data/ with tiny models
+/// (1 epoch of 64 frames); the run dir is the last argument.
 std::vector<std::string> TinyReproduceArgs(const fs::path& dir,
                                            const std::string& name) {
   return {"reproduce",
