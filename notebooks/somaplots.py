@@ -15,6 +15,9 @@ $SOMA_RESULTS_DIR/figures, i.e. <repo>/results/figures), where <repo> is the fir
 above the working directory (or this file) that holds ablations/. A relative value is taken from
 the shell's folder ($PWD), since a Jupyter kernel runs in the notebook's folder.
 
+Every saved figure carries, under the plot, the training budget of its report (the "training budget"
+row of results/<name>.md), so a copy still says which models it shows.
+
 Plain Python works too: `python3 notebooks/somaplots.py table5` writes the figure without Jupyter.
 """
 
@@ -123,11 +126,44 @@ def load_curves(name: str) -> pd.DataFrame | None:
     return df
 
 
+_BUDGET_ROW = re.compile(r"^\| training budget[^|]*\| `([^`]*)` \|", re.MULTILINE)
+
+
+def training_budget(name: str) -> str | None:
+    """The training overrides of every model of results/<name>.md (its header's "training budget"
+    row, written by `soma reproduce`), or None when the report or the row is missing."""
+    path = results_dir() / f"{name}.md"
+    if not path.is_file():
+        return None
+    match = _BUDGET_ROW.search(path.read_text(encoding="utf-8"))
+    return match.group(1) if match else None
+
+
+def budget_note(name: str) -> str | None:
+    """The figure's provenance line: the training budget of <name> or, for "claims", of every table
+    whose report exists (one budget if they share it). None when no report names one."""
+    tables = NAMES if name == "claims" else (name,)
+    budgets = {t: b for t in tables if (b := training_budget(t))}
+    if not budgets:
+        return None
+    if len(set(budgets.values())) == 1:
+        return f"training budget (every model): {next(iter(budgets.values()))}"
+    return "training budget (every model): " + "; ".join(f"{t}: {b}" for t, b in budgets.items())
+
+
 def save(fig, name: str) -> pathlib.Path:
-    """Writes the figure to $SOMA_FIGURES_DIR/<name>.png; shows it in a notebook, closes it otherwise."""
+    """Writes the figure to $SOMA_FIGURES_DIR/<name>.png, with the training budget of its report
+    (budget_note) printed under it, so a figure says which models it shows (e.g. which marker layout)
+    wherever it is copied; shows it in a notebook, closes it otherwise."""
     out = figures_dir()
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{name}.png"
+    note = budget_note(name)
+    if note:
+        # Below the figure: constrained layout keeps every axis label above y = 0, and
+        # bbox_inches="tight" grows the saved area to include the note.
+        fig.text(0.5, -0.01, note, ha="center", va="top", fontsize=8, color="dimgray", wrap=True)
+        print(note)
     fig.savefig(path, dpi=120, bbox_inches="tight")
     print(f"wrote {path}")
     if "inline" in matplotlib.get_backend():

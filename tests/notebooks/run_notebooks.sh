@@ -7,8 +7,9 @@
 # `soma reproduce <name>`; FIGURES_DIR (else $SOMA_FIGURES_DIR, else RESULTS_DIR/figures) receives
 # <name>.png. Fixture mode (CTest notebooks.fixtures): RESULTS_DIR = tests/notebooks/fixtures.
 #
-# Fails (exit 1) if a notebook raises, if a notebook whose CSV exists writes no fresh PNG, or if a
-# notebook whose CSV is missing does not say "not run yet" or writes a PNG. Executed copies go to a
+# Fails (exit 1) if a notebook raises, if a notebook whose CSV exists writes no fresh PNG or does not
+# print the training budget of its report (<name>.md) under its figure, or if a notebook whose CSV is
+# missing does not say "not run yet" or writes a PNG. Executed copies go to a
 # temporary folder (kept with KEEP_NOTEBOOK_OUTPUTS=1); the notebooks in the tree stay clean.
 set -uo pipefail
 
@@ -79,7 +80,22 @@ for nb in "${notebooks[@]}"; do
       failed+=("$name")
       continue
     fi
-    echo "ok   $name ($((SECONDS - t0)) s): $png"
+    # A report's training budget (results/<name>.md; claims: that of any table) is printed under
+    # the figure (somaplots.budget_note), so a copied figure still says which models it shows.
+    reports=("$results/$name.md")
+    [[ $name == claims ]] && reports=("$results"/table*.md "$results"/fig_*.md)
+    budget=""
+    for md in "${reports[@]}"; do
+      [[ -f "$md" ]] || continue
+      budget=$(sed -n 's/^| training budget[^|]*| `\([^`]*\)` |.*$/\1/p' "$md" | head -n 1)
+      [[ -n "$budget" ]] && break
+    done
+    if [[ -n "$budget" ]] && ! grep -qF "training budget (every model): $budget" "$tmp/$name.ipynb"; then
+      echo "FAIL $name: the figure does not state the training budget of its report ($budget)"
+      failed+=("$name")
+      continue
+    fi
+    echo "ok   $name ($((SECONDS - t0)) s): $png${budget:+ (training budget: $budget)}"
   else
     if ! grep -q "not run yet" "$tmp/$name.ipynb"; then
       echo "FAIL $name: no $input, but the notebook did not say \"not run yet\""
