@@ -8,13 +8,17 @@
 // by the model's labels, on up to `max_frames` frames that have every model
 // label (drawn with `seed`); per layer the attention weights are maxed over
 // heads and averaged over frames (the paper's procedure), then weighted by
-// the distances between the markers (`layout` group) on the body (`body`
-// group) in an A-pose (arms lowered by `arm_angle_deg` from the rest
-// T-pose). Writes attention_span.md (per layer: the span of every model,
-// mean +- std over models, and the paper's claim, "the span narrows with
-// depth", checked per model), attention_span.csv and attention_span.png.
+// the distances between the markers on the body (`body` group) in an A-pose
+// (arms lowered by `arm_angle_deg` from the rest T-pose). The markers are
+// placed by the layout each model was trained on (the `layout` group of its
+// run's .hydra/config.yaml) when `use_training_layout` and that file exists,
+// else by this run's `layout` group. Writes attention_span.md (per layer: the
+// span of every model, mean +- std over models, and the paper's claim, "the
+// span narrows with depth", checked per model), attention_span.csv and
+// attention_span.png.
 #include "framework/body/marker_layout.h"
 #include "framework/config/decode.h"
+#include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
@@ -33,7 +37,9 @@
 #include <torch/torch.h>
 
 #include <cmath>
+#include <filesystem>
 #include <numbers>
+#include <optional>
 #include <sstream>
 
 namespace soma {
@@ -46,7 +52,23 @@ struct AttentionSpanOptions {
   uint64_t seed = 0;
   double arm_angle_deg = 45.0;
   int batch_size = 256;
+  bool use_training_layout = true;
 };
+
+/// The `layout` group of the run that trained `checkpoint`, from
+/// <run>/.hydra/config.yaml (`soma train` writes checkpoints to
+/// <run>/checkpoints/), or nullopt when that file or its group is missing
+/// (e.g. a checkpoint copied out of its run). `config` receives the file.
+std::optional<ConfigNode> TrainingLayoutGroup(const std::string& checkpoint,
+                                              std::filesystem::path* config) {
+  *config = std::filesystem::path(checkpoint).parent_path().parent_path() /
+            ".hydra" / "config.yaml";
+  if (!std::filesystem::is_regular_file(*config)) return std::nullopt;
+  const ConfigNode root = ParseYaml(ReadFile(*config), config->string());
+  const ConfigNode* layout = root.Find("layout");
+  if (layout == nullptr) return std::nullopt;
+  return *layout;
+}
 
 /// Marker positions (3 x L, model label order) on `body` at mean shape in
 /// an A-pose: the shoulders rotated `arm_angle_deg` down about the
@@ -200,12 +222,12 @@ class AttentionSpanTask : public Task {
     }
     BuildContext build(ctx.seed, ctx.output_dir.string());
     const BodyModel body = BuildBody(cfg, build);
-    const MarkerLayout layout = BuildLayout(cfg, body, build);
     const C3dData c3d = ReadC3d(options_.input);
 
     // spans[model][layer]
     std::vector<std::vector<AttentionSpanLayer>> spans;
     std::vector<std::string> labels;
+    std::vector<std::string> layouts;  // per model: which layout, and why
     int64_t frames_used = 0;
     double uniform_span_m = 0.0;
     for (const std::string& checkpoint : options_.checkpoints) {
@@ -222,6 +244,8 @@ class AttentionSpanTask : public Task {
       const torch::Tensor points = CompleteFrames(
           c3d, labels, options_.input, options_.max_frames, options_.seed);
       frames_used = points.size(0);
+      const MarkerLayout layout =
+          ModelLayout(cfg, checkpoint, body, build, &layouts.emplace_back());
       const Eigen::MatrixXd distances = PairwiseDistances(
           APoseMarkers(body, layout, labels, options_.arm_angle_deg));
       spans.push_back(ComputeAttentionSpan(
@@ -243,11 +267,44 @@ class AttentionSpanTask : public Task {
                frames_used,
                line);
     }
-    Write(spans, frames_used, uniform_span_m, ctx);
+    Write(spans, layouts, frames_used, uniform_span_m, ctx);
   }
 
  private:
+  /// The layout that places the markers of `checkpoint`'s model: its
+  /// training run's `layout` group if `use_training_layout` and the run's
+  /// config exists, else this run's. `described` receives the choice, e.g.
+  /// "`{name: file, path: a.json}` (the layout of <run>/.hydra/config.yaml)".
+  MarkerLayout ModelLayout(const ConfigNode& cfg,
+                           const std::string& checkpoint,
+                           const BodyModel& body,
+                           BuildContext& build,
+                           std::string* described) const {
+    std::filesystem::path config;
+    std::optional<ConfigNode> trained;
+    if (options_.use_training_layout) {
+      trained = TrainingLayoutGroup(checkpoint, &config);
+    }
+    if (!trained) {
+      const ConfigNode* group = cfg.Find("layout");
+      *described = fmt::format("`{}` (this run's layout group{})",
+                               group ? DumpFlow(*group) : "none",
+                               options_.use_training_layout
+                                   ? fmt::format(": no {}", config.string())
+                                   : "");
+      SOMA_LOG(INFO, "attention_span: {}: layout {}", checkpoint, *described);
+      return BuildLayout(cfg, body, build);
+    }
+    *described = fmt::format(
+        "`{}` (the layout of {})", DumpFlow(*trained), config.string());
+    SOMA_LOG(INFO, "attention_span: {}: layout {}", checkpoint, *described);
+    ConfigNode model_cfg = cfg;
+    model_cfg.Set("layout", *trained);
+    return BuildLayout(model_cfg, body, build);
+  }
+
   void Write(const std::vector<std::vector<AttentionSpanLayer>>& spans,
+             const std::vector<std::string>& layouts,
              int64_t frames_used,
              double uniform_span_m,
              RunContext& ctx) const {
@@ -284,7 +341,11 @@ class AttentionSpanTask : public Task {
         frames_used,
         options_.arm_angle_deg,
         models);
-    md << "| layer |";
+    md << "Marker layout of each model's distances:\n\n";
+    for (size_t m = 0; m < models; ++m) {
+      md << fmt::format("- model {}: {}\n", m, layouts[m]);
+    }
+    md << "\n| layer |";
     std::string rule = "|---|";
     for (size_t m = 0; m < models; ++m) {
       md << fmt::format(" model {} (m) |", m);
@@ -351,6 +412,7 @@ void RegisterAttentionSpanTask(Registry<Task>& registry) {
         reader.Read("seed", &o.seed);
         reader.Read("arm_angle_deg", &o.arm_angle_deg);
         reader.Read("batch_size", &o.batch_size);
+        reader.Read("use_training_layout", &o.use_training_layout);
         reader.Check("checkpoints", !o.checkpoints.empty(), "one or more");
         reader.Check("max_frames", o.max_frames >= 1, "max_frames >= 1");
         reader.Check("batch_size", o.batch_size >= 1, "batch_size >= 1");

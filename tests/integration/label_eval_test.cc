@@ -308,6 +308,28 @@ TEST(LabelTask, TinyModelLabelsACorruptedTakeAndIsScored) {
   EXPECT_TRUE(fs::exists(dir / "span/attention_span.png"));
   EXPECT_NE(ReadFile(dir / "span/attention_span.md").find("| 1 |"),
             std::string::npos);
+  // The markers are placed by the model's training layout (its run's
+  // .hydra/config.yaml), not by this run's layout group: a layout without
+  // RBAC does not matter unless task.use_training_layout=false.
+  const std::vector<std::string> span_args = {
+      "attention_span",
+      "task.checkpoints=" + checkpoint,
+      "task.input=" +
+          (testing::SharedDataDir() / "c3d" / "HDM_mm_01-02_03_120.c3d")
+              .string(),
+      "task.max_frames=16",
+      "layout.exclude=[RBAC]"};
+  std::vector<std::string> args = span_args;
+  args.push_back("hydra.run.dir=span_trained_layout");
+  ASSERT_EQ(testing::RunSomaTask(dir, args, &err), 0) << err;
+  EXPECT_THAT(ReadFile(dir / "span_trained_layout/attention_span.md"),
+              HasSubstr("(the layout of " +
+                        (dir / "train/.hydra/config.yaml").string() + ")"));
+  args = span_args;
+  args.push_back("hydra.run.dir=span_run_layout");
+  args.push_back("task.use_training_layout=false");
+  EXPECT_NE(testing::RunSomaTask(dir, args, &err), 0);
+  EXPECT_THAT(err, HasSubstr("the model's label 'RBAC' is not in the layout"));
   EXPECT_NE(
       testing::RunSomaTask(dir,
                            {"label",
