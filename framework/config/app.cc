@@ -230,6 +230,7 @@ ConfigNode ProvenanceNode(
   }
   node.Set("libraries", libs);
   node.Set("host", ConfigNode::LiteralString(HostName()));
+  node.Set("cpu", ConfigNode::LiteralString(CpuModel()));
   node.Set("threads", threads);
   node.Set("start_time", ConfigNode::LiteralString(start_time));
   if (end) {

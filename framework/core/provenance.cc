@@ -7,6 +7,7 @@
 #include <array>
 #include <cstdio>
 #include <ctime>
+#include <fstream>
 #include <memory>
 #include <unistd.h>
 
@@ -94,6 +95,19 @@ std::string HostName() {
   char buffer[256] = {0};
   if (::gethostname(buffer, sizeof(buffer) - 1) != 0) return "";
   return buffer;
+}
+
+std::string CpuModel() {
+  std::ifstream in("/proc/cpuinfo");
+  for (std::string line; std::getline(in, line);) {
+    if (line.rfind("model name", 0) != 0) continue;
+    const size_t colon = line.find(':');
+    if (colon == std::string::npos) continue;
+    std::string name = line.substr(colon + 1);
+    name.erase(0, name.find_first_not_of(" \t"));
+    return Trim(name);
+  }
+  return "";
 }
 
 std::string IsoNow() {

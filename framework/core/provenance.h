@@ -1,6 +1,6 @@
 // Provenance of a run: the code version (git SHA, dirty flag and diff), the
-// build (compiler, build type, library versions) and the host. Recorded in
-// every run directory's `.hydra/hydra.yaml` (HYDRA.md section 11).
+// build (compiler, build type, library versions), the host and its CPU.
+// Recorded in every run directory's `.hydra/hydra.yaml` (HYDRA.md section 11).
 #pragma once
 
 #include <string>
@@ -31,6 +31,12 @@ BuildInfo GetBuildInfo();
 
 /// The host name ("" if unknown).
 std::string HostName();
+
+/// The processor's model name, e.g. "AMD EPYC 9B14" (the first "model name"
+/// of /proc/cpuinfo; "" where there is none). Two hosts of one name can be
+/// different machines, and floating-point results (BLAS kernels) and speed
+/// follow the processor, so runs record it beside the host.
+std::string CpuModel();
 
 /// Current local time as ISO-8601 "2026-11-22T05:10:03".
 std::string IsoNow();

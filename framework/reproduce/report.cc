@@ -295,7 +295,12 @@ void WriteResultsMarkdown(const AblationSpec& spec,
       Duration(context.compute_s),
       context.models_done,
       context.models_planned);
-  md << "| machine | " << context.machine << " |\n";
+  if (!context.trained_on.empty()) {
+    md << "| trained on | "
+       << MarkdownCell(fmt::format("{}", fmt::join(context.trained_on, "; ")))
+       << " |\n";
+  }
+  md << "| report written on | " << MarkdownCell(context.machine) << " |\n";
   md << "| commit | " << context.commit << " |\n";
   md << "| date | " << context.date << " |\n\n";
 

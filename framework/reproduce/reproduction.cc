@@ -531,6 +531,39 @@ ReproductionRun SummarizeLedger(const ReproductionPlan& plan) {
   return run;
 }
 
+std::vector<std::string> TrainingMachines(const ReproductionPlan& plan) {
+  std::map<std::string, int> count;
+  for (const PlannedModel& m : plan.models) {
+    if (m.commands.empty() || !m.commands.front().Done()) continue;
+    const fs::path file = m.dir / ".hydra" / "hydra.yaml";
+    std::string machine = "no provenance";
+    if (fs::is_regular_file(file)) {
+      const ConfigNode root = ParseYaml(ReadFile(file), file.string());
+      const ConfigNode* p = root.FindPath("hydra.runtime.provenance");
+      auto text = [p](const char* key) -> std::string {
+        const ConfigNode* n = p != nullptr ? p->Find(key) : nullptr;
+        return n != nullptr && n->IsScalar() && !n->IsNull() ? n->text() : "";
+      };
+      const std::string host = text("host");
+      const std::string cpu = text("cpu");
+      machine = fmt::format("{}, {}",
+                            host.empty() ? "unknown host" : host,
+                            cpu.empty() ? "CPU not recorded" : cpu);
+    }
+    ++count[machine];
+  }
+  std::vector<std::pair<std::string, int>> sorted(count.begin(), count.end());
+  std::stable_sort(sorted.begin(), sorted.end(), [](auto& a, auto& b) {
+    return a.second > b.second;
+  });
+  std::vector<std::string> machines;
+  for (const auto& [machine, n] : sorted) {
+    machines.push_back(
+        fmt::format("{}: {} model{}", machine, n, n == 1 ? "" : "s"));
+  }
+  return machines;
+}
+
 std::vector<CellResult> CollectResults(const AblationSpec& spec,
                                        const ReproductionPlan& plan) {
   std::vector<CellResult> cells;

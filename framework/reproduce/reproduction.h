@@ -125,6 +125,13 @@ double EstimateSecondsLeft(std::vector<double> finished_model_s,
 std::vector<CellResult> CollectResults(const AblationSpec& spec,
                                        const ReproductionPlan& plan);
 
+/// Where the finished trainings of `plan` ran, from the provenance of each
+/// training run (`<run>/.hydra/hydra.yaml`: host and CPU): one entry per
+/// machine, "vm, AMD EPYC 9B14: 8 models", most models first. A run that
+/// recorded no CPU (written before runs recorded it) says "CPU not recorded";
+/// one without the file says "no provenance". Empty when nothing is trained.
+std::vector<std::string> TrainingMachines(const ReproductionPlan& plan);
+
 /// The training curves of every planned model that has started: one row per
 /// (variant, seed, epoch) from its run dir's metrics.csv (columns variant,
 /// seed, epoch, train_loss, val_loss, val_acc, val_f1; accuracies as

@@ -92,6 +92,7 @@ class ReproduceTask : public Task {
       const ReproductionRun ledger = SummarizeLedger(plan);
       now.compute_s = ledger.compute_s;
       now.models_done = ledger.models_done;
+      now.trained_on = TrainingMachines(plan);
       const std::vector<CellResult> cells = CollectResults(spec, plan);
       const fs::path results = options_.results_dir;
       CreateDirectories(results);
@@ -156,8 +157,10 @@ class ReproduceTask : public Task {
                          ? git.sha.substr(0, 12) + (git.dirty ? "-dirty" : "")
                          : "unknown";
     context.date = IsoNow();
-    context.machine = fmt::format("{} ({} hardware threads)",
+    const std::string cpu = CpuModel();
+    context.machine = fmt::format("{}, {} ({} hardware threads)",
                                   HostName(),
+                                  cpu.empty() ? "CPU unknown" : cpu,
                                   std::thread::hardware_concurrency());
     context.budget = reproduction.budget;
     context.data_dir = reproduction.data_dir.string();

@@ -161,6 +161,8 @@ TEST(Cli, RunWritesHydraDirectoryLogAndMetrics) {
   const ConfigNode& provenance = hydra.at("runtime").at("provenance");
   EXPECT_TRUE(provenance.Has("git_sha"));
   EXPECT_TRUE(provenance.Has("git_dirty"));
+  EXPECT_TRUE(provenance.Has("host"));
+  EXPECT_TRUE(provenance.Has("cpu"));
   EXPECT_TRUE(provenance.at("libraries").Has("yaml-cpp"));
   EXPECT_GT(provenance.at("wall_time_s").AsDouble(), 0.0);
   const std::string log = ReadFile(run / "soma.log");

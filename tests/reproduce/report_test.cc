@@ -219,8 +219,14 @@ TEST(ReportTest, MarkdownMarksPartialTablesAndShowsClaims) {
   context.models_planned = 9;
   context.compute_s = 5400;
   context.budget = {"scale=cpu"};
+  context.machine = "vm, CPU B (2 hardware threads)";
+  context.trained_on = {"vm, CPU A: 3 models", "vm, CPU not recorded: 1 model"};
   WriteResultsMarkdown(Spec(), Cells(), context, dir / "demo.md");
   const std::string md = ReadFile(dir / "demo.md");
+  EXPECT_THAT(md,
+              HasSubstr("| trained on | vm, CPU A: 3 models; vm, CPU not "
+                        "recorded: 1 model |\n| report written on | vm, CPU B "
+                        "(2 hardware threads) |"));
   EXPECT_THAT(md, HasSubstr("**PARTIAL: 4 of 9 trainings finished.**"));
   EXPECT_THAT(md, HasSubstr("`soma reproduce demo`"));
   EXPECT_THAT(md, HasSubstr("1 h 30 min"));

@@ -281,6 +281,31 @@ TEST_F(ReproductionTest, RunsEverythingOnceThenResumesOnlyWhatIsMissing) {
   EXPECT_THAT(calls[0], HasSubstr("eval "));
 }
 
+TEST_F(ReproductionTest, TrainingMachinesCountTheProvenanceOfEachTraining) {
+  const ReproductionPlan plan = PlanReproduction(Spec(), options_);
+  EXPECT_TRUE(TrainingMachines(plan).empty());  // nothing trained yet
+  RunReproduction(plan, options_, false);
+  ASSERT_EQ(plan.models.size(), 4u);
+  auto provenance = [&](int model, const std::string& fields) {
+    fs::create_directories(plan.models[model].dir / ".hydra");
+    WriteFileAtomic(plan.models[model].dir / ".hydra" / "hydra.yaml",
+                    "hydra:\n  runtime:\n    provenance:\n" + fields);
+  };
+  provenance(0, "      host: vm\n      cpu: CPU A\n");
+  provenance(1, "      host: vm\n      cpu: CPU A\n");
+  provenance(2, "      host: vm\n      threads: 1\n");  // an older run
+  EXPECT_THAT(TrainingMachines(plan),
+              ElementsAre("vm, CPU A: 2 models",
+                          "no provenance: 1 model",
+                          "vm, CPU not recorded: 1 model"));
+  // A model whose training is not finished ran nowhere yet.
+  fs::remove(plan.models[0].dir / "metrics.yaml");
+  EXPECT_THAT(TrainingMachines(plan),
+              ElementsAre("no provenance: 1 model",
+                          "vm, CPU A: 1 model",
+                          "vm, CPU not recorded: 1 model"));
+}
+
 TEST_F(ReproductionTest, AFailedModelIsRecordedAndRetriedOnTheNextRun) {
   const ReproductionPlan plan = PlanReproduction(Spec(), options_);
   // Fail the label step of one model (only its dir contains this path).
