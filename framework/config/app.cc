@@ -222,6 +222,7 @@ ConfigNode ProvenanceNode(
   node.Set("git_sha",
            ConfigNode::LiteralString(git.available ? git.sha : "unknown"));
   node.Set("git_dirty", git.dirty);
+  node.Set("build_commit", ConfigNode::LiteralString(build.git_commit));
   node.Set("compiler", ConfigNode::LiteralString(build.compiler));
   node.Set("build_type", ConfigNode::LiteralString(build.build_type));
   ConfigNode libs = ConfigNode::EmptyMap();
@@ -306,6 +307,11 @@ JobOutcome RunJob(ConfigNode root,
       ctx.seed = static_cast<uint64_t>(seed->AsInt());
     }
     SOMA_LOG(INFO, "Job {} started in {}", job_num, ctx.output_dir.string());
+    if (const std::string mismatch =
+            BuildCommitMismatch(GetBuildInfo().git_commit, git);
+        !mismatch.empty()) {
+      SOMA_LOG(WARNING, "{}", mismatch);
+    }
     task(task_cfg, ctx);
     outcome.ok = true;
   } catch (const Error& e) {

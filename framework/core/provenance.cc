@@ -1,5 +1,6 @@
 #include "framework/core/provenance.h"
 
+#include "framework/core/build_git.h"
 #include "framework/core/build_info.h"
 
 #include <fmt/format.h>
@@ -77,6 +78,7 @@ BuildInfo GetBuildInfo() {
   info.version = SOMA_VERSION_STRING;
   info.compiler = SOMA_CXX_COMPILER;
   info.build_type = SOMA_BUILD_TYPE;
+  info.git_commit = SOMA_BUILD_GIT_COMMIT;
   const std::pair<const char*, const char*> libs[] = {
       {"fmt", SOMA_FMT_VERSION},
       {"yaml-cpp", SOMA_YAML_CPP_VERSION},
@@ -89,6 +91,25 @@ BuildInfo GetBuildInfo() {
     if (version[0] != '\0') info.libraries.emplace_back(name, version);
   }
   return info;
+}
+
+std::string CommitLabel(const GitState& git) {
+  if (!git.available || git.sha.empty()) return "unknown";
+  return git.sha + (git.dirty ? "-dirty" : "");
+}
+
+std::string BuildCommitMismatch(const std::string& build_commit,
+                                const GitState& checkout) {
+  const std::string at = CommitLabel(checkout);
+  if (build_commit == "unknown" || build_commit.empty() || at == "unknown" ||
+      build_commit == at) {
+    return "";
+  }
+  return fmt::format(
+      "this binary was compiled at commit {} but the checkout is at {}; the "
+      "code that runs is the binary's (hydra.runtime.provenance.build_commit)",
+      build_commit,
+      at);
 }
 
 std::string HostName() {

@@ -23,11 +23,25 @@ struct BuildInfo {
   std::string version;     // somalab version
   std::string compiler;    // "GNU 12.2.0"
   std::string build_type;  // "Release"
+  /// The commit the binary was compiled at, "<sha>" or "<sha>-dirty"
+  /// (uncommitted changes to tracked files at build time), "unknown" outside
+  /// a git checkout. Recorded at every build (cmake/BuildGit.cmake).
+  std::string git_commit;
   /// (library, version) for libraries linked into this build.
   std::vector<std::pair<std::string, std::string>> libraries;
 };
 
 BuildInfo GetBuildInfo();
+
+/// "<sha>" or "<sha>-dirty" for a checkout's state, "unknown" without git.
+std::string CommitLabel(const GitState& git);
+
+/// A warning when a binary compiled at `build_commit` runs in a checkout at
+/// another commit (e.g. a copy of the binary kept for a long sweep while the
+/// checkout moves on): the run's code is then the binary's, not the
+/// checkout's. "" when they agree or either is unknown.
+std::string BuildCommitMismatch(const std::string& build_commit,
+                                const GitState& checkout);
 
 /// The host name ("" if unknown).
 std::string HostName();

@@ -163,6 +163,7 @@ TEST(Cli, RunWritesHydraDirectoryLogAndMetrics) {
   EXPECT_TRUE(provenance.Has("git_dirty"));
   EXPECT_TRUE(provenance.Has("host"));
   EXPECT_TRUE(provenance.Has("cpu"));
+  EXPECT_TRUE(provenance.Has("build_commit"));
   EXPECT_TRUE(provenance.at("libraries").Has("yaml-cpp"));
   EXPECT_GT(provenance.at("wall_time_s").AsDouble(), 0.0);
   const std::string log = ReadFile(run / "soma.log");
