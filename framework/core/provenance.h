@@ -46,7 +46,7 @@ std::string BuildCommitMismatch(const std::string& build_commit,
 /// The host name ("" if unknown).
 std::string HostName();
 
-/// The processor's model name, e.g. "AMD EPYC 9B14" (the first "model name"
+/// The processor's model name, e.g. "Intel(R) Xeon(R) Processor" (the first "model name"
 /// of /proc/cpuinfo; "" where there is none). Two hosts of one name can be
 /// different machines, and floating-point results (BLAS kernels) and speed
 /// follow the processor, so runs record it beside the host.

@@ -72,8 +72,8 @@ struct ReportContext {
   std::string commit;   // git SHA (+ "-dirty")
   std::string date;
   std::string machine;  // where the report was written: host, CPU, threads
-  /// Where the trained models ran (TrainingMachines): "vm, AMD EPYC 9B14:
-  /// 12 models"; the row is left out when empty.
+  /// Where the trained models ran (TrainingMachines): "vm, Intel(R) Xeon(R)
+  /// Processor: 12 models"; the row is left out when empty.
   std::vector<std::string> trained_on;
   std::vector<std::string> budget;  // overrides of every training
   std::string data_dir;             // where the takes were read

@@ -16,6 +16,7 @@
 #include <algorithm>
 #include <deque>
 #include <map>
+#include <optional>
 #include <set>
 #include <sstream>
 
@@ -537,9 +538,16 @@ std::vector<std::string> TrainingMachines(const ReproductionPlan& plan) {
     if (m.commands.empty() || !m.commands.front().Done()) continue;
     const fs::path file = m.dir / ".hydra" / "hydra.yaml";
     std::string machine = "no provenance";
+    std::optional<ConfigNode> root;
     if (fs::is_regular_file(file)) {
-      const ConfigNode root = ParseYaml(ReadFile(file), file.string());
-      const ConfigNode* p = root.FindPath("hydra.runtime.provenance");
+      try {
+        root = ParseYaml(ReadFile(file), file.string());
+      } catch (const Error&) {
+        machine = "unreadable provenance";
+      }
+    }
+    if (root) {
+      const ConfigNode* p = root->FindPath("hydra.runtime.provenance");
       auto text = [p](const char* key) -> std::string {
         const ConfigNode* n = p != nullptr ? p->Find(key) : nullptr;
         return n != nullptr && n->IsScalar() && !n->IsNull() ? n->text() : "";

@@ -127,9 +127,12 @@ std::vector<CellResult> CollectResults(const AblationSpec& spec,
 
 /// Where the finished trainings of `plan` ran, from the provenance of each
 /// training run (`<run>/.hydra/hydra.yaml`: host and CPU): one entry per
-/// machine, "vm, AMD EPYC 9B14: 8 models", most models first. A run that
-/// recorded no CPU (written before runs recorded it) says "CPU not recorded";
-/// one without the file says "no provenance". Empty when nothing is trained.
+/// machine, "vm, Intel(R) Xeon(R) Processor: 8 models", most models first. A
+/// run that recorded no CPU (written before runs recorded it) says "CPU not
+/// recorded"; one without the file says "no provenance", one that cannot be
+/// parsed "unreadable provenance". A training resumed elsewhere names the
+/// machine of its last start (hydra.yaml is rewritten at each start). Empty
+/// when nothing is trained.
 std::vector<std::string> TrainingMachines(const ReproductionPlan& plan);
 
 /// The training curves of every planned model that has started: one row per

@@ -298,10 +298,16 @@ TEST_F(ReproductionTest, TrainingMachinesCountTheProvenanceOfEachTraining) {
               ElementsAre("vm, CPU A: 2 models",
                           "no provenance: 1 model",
                           "vm, CPU not recorded: 1 model"));
+  fs::create_directories(plan.models[3].dir / ".hydra");
+  WriteFileAtomic(plan.models[3].dir / ".hydra" / "hydra.yaml", "a: [b\n");
+  EXPECT_THAT(TrainingMachines(plan),
+              ElementsAre("vm, CPU A: 2 models",
+                          "unreadable provenance: 1 model",
+                          "vm, CPU not recorded: 1 model"));
   // A model whose training is not finished ran nowhere yet.
   fs::remove(plan.models[0].dir / "metrics.yaml");
   EXPECT_THAT(TrainingMachines(plan),
-              ElementsAre("no provenance: 1 model",
+              ElementsAre("unreadable provenance: 1 model",
                           "vm, CPU A: 1 model",
                           "vm, CPU not recorded: 1 model"));
 }
