@@ -46,10 +46,10 @@ std::string BuildCommitMismatch(const std::string& build_commit,
 /// The host name ("" if unknown).
 std::string HostName();
 
-/// The processor's model name, e.g. "Intel(R) Xeon(R) Processor" (the first "model name"
-/// of /proc/cpuinfo; "" where there is none). Two hosts of one name can be
-/// different machines, and floating-point results (BLAS kernels) and speed
-/// follow the processor, so runs record it beside the host.
+/// The processor's model name, e.g. "Intel(R) Xeon(R) Processor" (the first
+/// "model name" of /proc/cpuinfo; "" where there is none). Two hosts of one
+/// name can be different machines, and floating-point results (BLAS kernels)
+/// and speed follow the processor, so runs record it beside the host.
 std::string CpuModel();
 
 /// Current local time as ISO-8601 "2026-11-22T05:10:03".
