@@ -238,16 +238,19 @@ def _metric(df: pd.DataFrame, metric: str = "acc") -> pd.DataFrame:
     return df[df["metric"] == metric].reset_index(drop=True)
 
 
-def _legend_status(ax, markers: bool = False, **legend_kw):
-    """Adds a legend entry that explains how partial cells are marked (hatched bars or ringed points).
-    legend_kw (loc, bbox_to_anchor, ...) go to ax.legend."""
+def _legend_status(ax, d: pd.DataFrame, markers: bool = False, **legend_kw):
+    """Draws the legend and, when some cell of d is partial, an entry that explains how partial cells
+    are marked (hatched bars or ringed points). legend_kw (loc, bbox_to_anchor, ...) go to ax.legend."""
     handles, labels = ax.get_legend_handles_labels()
-    if markers:
-        handles.append(Line2D([], [], marker="o", ms=10, mfc="none", mec="tab:orange", mew=1.5, linestyle="none"))
-    else:
-        handles.append(Patch(facecolor="white", edgecolor="black", hatch="///"))
-    labels.append("partial (n/m seeds)")
-    ax.legend(handles, labels, **{"fontsize": 8, "loc": "best", **legend_kw})
+    if d["status"].eq("partial").any():
+        if markers:
+            handles.append(Line2D([], [], marker="o", ms=10, mfc="none", mec="tab:orange", mew=1.5,
+                                  linestyle="none"))
+        else:
+            handles.append(Patch(facecolor="white", edgecolor="black", hatch="///"))
+        labels.append("partial (n/m seeds)")
+    if handles:
+        ax.legend(handles, labels, **{"fontsize": 8, "loc": "best", **legend_kw})
 
 
 def _paper_note(df: pd.DataFrame) -> str:
@@ -368,7 +371,7 @@ def plot_table2(df: pd.DataFrame, metric: str = "acc"):
     ax.set_xlabel("occluded markers per frame (exactly k; + G = with up to 3 ghost points)")
     ax.set_ylabel(f"{metric} (%)")
     ax.grid(alpha=0.3)
-    _legend_status(ax, markers=True)
+    _legend_status(ax, d, markers=True)
     ax.set_title(f"Table 2 — {metric} vs exact occlusions (HDM05); paper: BMLrub, a reference, not like-for-like",
                  fontsize=10)
     return fig
@@ -445,7 +448,7 @@ def plot_table3(df: pd.DataFrame):
         ax.set_ylabel(f"{metric} (%)")
         ax.set_ylim(0, 105)
         ax.grid(axis="y", alpha=0.3)
-        _legend_status(ax)
+        _legend_status(ax, d)
         note = _paper_note(d)
         ax.set_title(f"{metric}: per-frame vs tracklet (± seed std)" + (f"\n{note}" if note else ""), fontsize=10)
     fig.suptitle("Table 3 — per-frame vs tracklet labelling, real takes with 50 broken trajectories")
@@ -532,7 +535,7 @@ def plot_table4(df: pd.DataFrame, metric: str = "acc"):
                   "(superset model: from the test take; subset model: from its training layout)", fontsize=9)
     ax.set_ylabel(f"{metric} (%)")
     ax.grid(alpha=0.3)
-    _legend_status(ax, markers=True, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    _legend_status(ax, d, markers=True, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     note = _paper_note(d)
     ax.set_title(f"Table 4 — {metric} (%) vs variations of the marker layout (real HDM05 take, per-frame);\n"
                  "paper rows dashed: Base Model (superset on k removed), Base MoCap (subset on the full layout)"
@@ -584,7 +587,7 @@ def plot_table5(df: pd.DataFrame, metric: str = "acc"):
         ax.grid(axis="x", alpha=0.3)
         tl = g["test_label"].iloc[0] if not g.empty else test
         ax.set_title(tl + ("" if g["paper"].notna().any() else " — no paper numbers for this test"), fontsize=10)
-        _legend_status(ax)
+        _legend_status(ax, g)
     axes[0][0].invert_yaxis()  # the axes share y: first variant on top, once
     fig.suptitle(f"Table 5 — ablation of SOMA's components, {metric} (%)")
     return fig
@@ -632,7 +635,7 @@ def plot_sweep(df: pd.DataFrame, name: str, xlabel: str, title: str, metric: str
     ax.set_xlabel(xlabel)
     ax.set_ylabel(f"{metric} (%)")
     ax.grid(alpha=0.3)
-    _legend_status(ax, markers=True)
+    _legend_status(ax, d, markers=True)
     note = "" if d["paper"].notna().any() else "no paper numbers: the paper shows this curve only as a figure"
     ax.set_title(title + (f"\n({note})" if note else ""), fontsize=10)
     return fig
@@ -706,7 +709,7 @@ def plot_fig_c3(df: pd.DataFrame, metric: str = "acc"):
     bx.set_title("real data (± seed std)", fontsize=10)
     bx.grid(axis="x", alpha=0.3)
     if tests:
-        _legend_status(bx, loc="lower right")
+        _legend_status(bx, d, loc="lower right")
     fig.suptitle("Fig. C.3 — training with extreme ghost-point distributions (the paper shows curves only)")
     return fig
 
