@@ -10,13 +10,19 @@ function(soma_add_library)
     # A module whose first sources have not landed yet: header-only for now.
     add_library(${target} INTERFACE)
     add_library(soma::${ARG_NAME} ALIAS ${target})
-    target_include_directories(${target} INTERFACE ${PROJECT_SOURCE_DIR})
+    target_include_directories(${target} INTERFACE
+      $<BUILD_INTERFACE:${PROJECT_SOURCE_DIR}> $<INSTALL_INTERFACE:${SOMA_INSTALL_INCLUDEDIR}>)
+    set_target_properties(${target} PROPERTIES EXPORT_NAME ${ARG_NAME})
+    set_property(GLOBAL APPEND PROPERTY SOMA_LIBRARIES ${target})
     target_link_libraries(${target} INTERFACE ${ARG_PUBLIC_LINK_LIBS})
     return()
   endif()
   add_library(${target} STATIC ${ARG_SRCS})
   add_library(soma::${ARG_NAME} ALIAS ${target})
-  target_include_directories(${target} PUBLIC ${PROJECT_SOURCE_DIR})
+  target_include_directories(${target} PUBLIC
+    $<BUILD_INTERFACE:${PROJECT_SOURCE_DIR}> $<INSTALL_INTERFACE:${SOMA_INSTALL_INCLUDEDIR}>)
+  # Installed and exported as soma::<NAME> (somalabConfig.cmake).
+  set_target_properties(${target} PROPERTIES EXPORT_NAME ${ARG_NAME})
   target_link_libraries(${target} PUBLIC ${ARG_PUBLIC_LINK_LIBS} PRIVATE ${ARG_PRIVATE_LINK_LIBS})
   target_compile_options(${target} PRIVATE ${SOMA_WARNING_FLAGS})
   set_property(GLOBAL APPEND PROPERTY SOMA_LIBRARIES ${target})

@@ -3,6 +3,7 @@
 #include "framework/body/body_source.h"
 #include "framework/config/interpolation.h"
 #include "framework/core/random.h"
+#include "framework/core/resources.h"
 #include "framework/model/register.h"
 #include "framework/motion/motion_source.h"
 #include "framework/registry/registry.h"
@@ -14,6 +15,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <filesystem>
 #include <mutex>
 
 namespace soma {
@@ -42,10 +44,25 @@ ConfigNode SweepIdResolver(const std::vector<ConfigNode>& args,
       fmt::format("{:016x}", Fnv1a64(joined)).substr(0, 10));
 }
 
+/// `${soma.home:}`: the resource root (configs/, models/, data/) found from
+/// the executable's location or $SOMA_HOME (framework/core/resources.h).
+/// `${soma.home:data/x.c3d}` joins a relative path to it.
+ConfigNode HomeResolver(const std::vector<ConfigNode>& args,
+                        const ResolverCall&) {
+  std::filesystem::path path = FindResourceRoot();
+  for (const ConfigNode& arg : args) {
+    if (arg.IsScalar() && !arg.IsNull() && !arg.text().empty()) {
+      path /= arg.text();
+    }
+  }
+  return ConfigNode::LiteralString(path.string());
+}
+
 }  // namespace
 
 void RegisterBuiltins() {
   DefaultResolvers().Register("soma.sweep_id", SweepIdResolver);
+  DefaultResolvers().Register("soma.home", HomeResolver);
   RegisterBodySources();
   RegisterMotionSources();
   RegisterPosePriors();

@@ -7,12 +7,14 @@
 //   soma solve <take.c3d>       fit the body to a labelled capture
 //   soma -m a=1,2 b=x,y         a Hydra-style multirun sweep
 #include "framework/config/app.h"
-#include "framework/core/build_info.h"
+#include "framework/core/error.h"
+#include "framework/core/resources.h"
 #include "framework/framework.h"
 #include "framework/registry/registry.h"
 #include "framework/tasks/task.h"
 
-#include <filesystem>
+#include <algorithm>
+#include <cstdio>
 #include <map>
 #include <string>
 #include <vector>
@@ -29,7 +31,9 @@ int main(int argc, char** argv) {
         {"reproduce", "ablation"},
         {"solve", "input"},
         {"label", "input"},
-        {"fit_layout", "input"}};
+        {"fit_layout", "input"},
+        {"label_eval", "input"},
+        {"trim", "input"}};
     const auto positional = kPositional.find(args.front());
     if (positional != kPositional.end() && args.size() > 1 &&
         args[1].find('=') == std::string::npos && args[1].front() != '-') {
@@ -37,11 +41,23 @@ int main(int argc, char** argv) {
     }
     args.front() = "task=" + args.front();
   }
-  // The configs/ of the working directory, else the ones of the source tree
-  // this binary was built from.
-  std::string config_dir = "configs";
-  if (!std::filesystem::is_directory(config_dir)) {
-    config_dir = std::string(SOMA_SOURCE_DIR) + "/configs";
+  // The configs/ of the resource root, found from this executable's own
+  // location or $SOMA_HOME (framework/core/resources.h); -cp/-cd still
+  // choose another primary config directory.
+  std::string config_dir;
+  try {
+    config_dir = (soma::FindResourceRoot() / "configs").string();
+  } catch (const soma::Error& e) {
+    const bool config_path_given =
+        std::any_of(args.begin(), args.end(), [](const std::string& a) {
+          return a == "-cp" || a == "-cd" || a.rfind("--config-path", 0) == 0 ||
+                 a.rfind("--config-dir", 0) == 0;
+        });
+    if (!config_path_given) {
+      std::fprintf(stderr, "Error: %s\n", e.what());
+      return 1;
+    }
+    config_dir = "configs";
   }
   return soma::RunHydraApp(args, config_dir, "config", soma::RunConfiguredTask);
 }

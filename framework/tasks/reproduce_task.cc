@@ -12,6 +12,7 @@
 #include "framework/core/logging.h"
 #include "framework/core/process.h"
 #include "framework/core/provenance.h"
+#include "framework/core/resources.h"
 #include "framework/registry/registry.h"
 #include "framework/reproduce/reproduction.h"
 #include "framework/tasks/task.h"
@@ -36,11 +37,12 @@ struct ReproduceTaskOptions {
 };
 
 /// `dir` as given if it exists (relative to the working directory), else
-/// the same path in the source tree this binary was built from.
+/// the same path under the resource root (framework/core/resources.h: the
+/// checkout or install this binary belongs to).
 fs::path LocateDir(const std::string& dir) {
   if (fs::is_directory(dir) || fs::path(dir).is_absolute()) return dir;
-  const fs::path in_source = fs::path(SOMA_SOURCE_DIR) / dir;
-  return fs::is_directory(in_source) ? in_source : fs::path(dir);
+  const fs::path in_home = FindResourceRoot() / dir;
+  return fs::is_directory(in_home) ? in_home : fs::path(dir);
 }
 
 class ReproduceTask : public Task {
