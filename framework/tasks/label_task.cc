@@ -3,6 +3,11 @@
 //
 //   soma label task.input=take.c3d task.checkpoint=run/checkpoints/best.pt
 //   soma label ... task.tracklet=true      # majority vote per trajectory
+//   soma label take.c3d                    # a bundled model (models/)
+//   soma label take.c3d task.model=hdm05   # that bundled model
+//
+// Without a checkpoint the bundled model whose labels match the capture's
+// is used (framework/train/model_zoo.h), and the log says which and why.
 //
 // Input labels are ignored: every valid point of every frame is a raw point.
 // Per frame, the valid points are packed (P = most points in any frame), the
@@ -24,6 +29,7 @@
 #include "framework/core/error.h"
 #include "framework/core/logging.h"
 #include "framework/core/progress.h"
+#include "framework/core/resources.h"
 #include "framework/core/timer.h"
 #include "framework/io/c3d.h"
 #include "framework/io/mocap_dataset.h"
@@ -32,6 +38,7 @@
 #include "framework/model/torch_utils.h"
 #include "framework/registry/registry.h"
 #include "framework/tasks/task.h"
+#include "framework/train/model_zoo.h"
 #include "framework/train/trainer.h"
 
 #include <ATen/ATen.h>
@@ -49,7 +56,8 @@ namespace fs = std::filesystem;
 
 struct LabelOptions {
   std::string input;
-  std::string checkpoint;
+  std::string checkpoint;      // empty: a bundled model
+  std::string model = "auto";  // a bundled model's name, or auto
   bool tracklet = false;
   InferenceOptions inference;
 };
@@ -119,11 +127,21 @@ class LabelTask : public Task {
     if (const ConfigNode* threads = cfg.Find("threads")) {
       SetTorchThreads(static_cast<int>(threads->AsInt()));
     }
+    const C3dData c3d = ReadC3d(options_.input);
+    if (options_.checkpoint.empty()) {
+      const std::vector<BundledModel> bundled =
+          ListBundledModels(ResourcePath("models"));
+      CaptureSummary capture = SummarizeCapture(c3d);
+      capture.name = options_.input;
+      const ModelChoice choice =
+          ChooseBundledModel(bundled, capture, options_.model);
+      SOMA_LOG(INFO, "label: {}", choice.reason);
+      options_.checkpoint = choice.model->checkpoint.string();
+    }
     const CheckpointInfo info = ReadCheckpointInfo(options_.checkpoint);
     Labeler model = LoadLabelerFromCheckpoint(options_.checkpoint);
     const int64_t num_labels = static_cast<int64_t>(info.labels.size());
 
-    const C3dData c3d = ReadC3d(options_.input);
     if (c3d.num_frames == 0) {
       throw IoError(fmt::format("{}: the capture has no frames to label",
                                 options_.input));
@@ -313,7 +331,13 @@ void RegisterLabelTask(Registry<Task>& registry) {
     ConfigReader reader(node);
     LabelOptions options;
     reader.Require("input", &options.input);
-    reader.Require("checkpoint", &options.checkpoint);
+    if (const ConfigNode* checkpoint = node.Find("checkpoint");
+        checkpoint != nullptr && checkpoint->IsNull()) {
+      reader.Ignore("checkpoint");  // null: a bundled model
+    } else {
+      reader.Require("checkpoint", &options.checkpoint);
+    }
+    reader.Read("model", &options.model);
     reader.Read("tracklet", &options.tracklet);
     if (const ConfigNode* inference = reader.Child("inference")) {
       options.inference = DecodeInferenceOptions(*inference);

@@ -15,12 +15,14 @@ void RegisterFitLayoutTask(Registry<Task>& registry);
 void RegisterFitPriorTask(Registry<Task>& registry);
 void RegisterInspectTask(Registry<Task>& registry);
 void RegisterLabelTask(Registry<Task>& registry);
+void RegisterLabelEvalTask(Registry<Task>& registry);
 void RegisterNoiseBankTask(Registry<Task>& registry);
 void RegisterRealismTask(Registry<Task>& registry);
 void RegisterReproduceTask(Registry<Task>& registry);
 void RegisterSolveTask(Registry<Task>& registry);
 void RegisterSynthTask(Registry<Task>& registry);
 void RegisterTrainTask(Registry<Task>& registry);
+void RegisterTrimTask(Registry<Task>& registry);
 
 void RegisterTasks() {
   Registry<Task>& registry = GetRegistry<Task>();
@@ -33,12 +35,14 @@ void RegisterTasks() {
   RegisterFitPriorTask(registry);
   RegisterInspectTask(registry);
   RegisterLabelTask(registry);
+  RegisterLabelEvalTask(registry);
   RegisterNoiseBankTask(registry);
   RegisterRealismTask(registry);
   RegisterReproduceTask(registry);
   RegisterSolveTask(registry);
   RegisterSynthTask(registry);
   RegisterTrainTask(registry);
+  RegisterTrimTask(registry);
   RegisterConfigGroup<Task>("task");
 }
 

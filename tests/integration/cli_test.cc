@@ -98,7 +98,8 @@ TEST(Cli, CfgJobPrintsTheComposedDefault) {
   const CommandResult r = RunSoma(dir, {"-cp", ConfigsDir(), "--cfg", "job"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const ConfigNode cfg = ParseYaml(r.out, "<stdout>");
-  EXPECT_EQ(cfg.at("task").at("name").AsString(), "demo");
+  // The main job: label and score a real capture (README command 1).
+  EXPECT_EQ(cfg.at("task").at("name").AsString(), "label_eval");
   EXPECT_EQ(cfg.Find("hydra"), nullptr);
   EXPECT_FALSE(fs::exists(dir / "results"));  // --cfg never writes
 }
@@ -108,6 +109,8 @@ TEST(Cli, CfgResolvePackageSelectsASubtree) {
   const CommandResult r = RunSoma(dir,
                                   {"-cp",
                                    ConfigsDir(),
+                                   "-cn",
+                                   "demo",
                                    "--cfg",
                                    "job",
                                    "--resolve",
@@ -124,7 +127,7 @@ TEST(Cli, InfoDefaultsListsTheTaskGroup) {
   const CommandResult r =
       RunSoma(dir, {"-cp", ConfigsDir(), "--info", "defaults"});
   ASSERT_EQ(r.exit_code, 0) << r.err;
-  EXPECT_NE(r.out.find("task/demo"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("task/label_eval"), std::string::npos) << r.out;
 }
 
 TEST(Cli, HelpListsGroupsAndFlags) {
@@ -142,6 +145,8 @@ TEST(Cli, RunWritesHydraDirectoryLogAndMetrics) {
   const CommandResult r = RunSoma(dir,
                                   {"-cp",
                                    ConfigsDir(),
+                                   "-cn",
+                                   "demo",
                                    "hydra.run.dir=out/run1",
                                    "task.steps=5",
                                    "seed=3"});
@@ -178,15 +183,19 @@ TEST(Cli, SameSeedSameMetrics) {
     ASSERT_EQ(RunSoma(dir,
                       {"-cp",
                        ConfigsDir(),
+                       "-cn",
+                       "demo",
                        std::string("hydra.run.dir=") + name,
                        "seed=5"})
                   .exit_code,
               0);
   }
   EXPECT_EQ(ReadFile(dir / "a/metrics.csv"), ReadFile(dir / "b/metrics.csv"));
-  ASSERT_EQ(RunSoma(dir, {"-cp", ConfigsDir(), "hydra.run.dir=c", "seed=6"})
-                .exit_code,
-            0);
+  ASSERT_EQ(
+      RunSoma(dir,
+              {"-cp", ConfigsDir(), "-cn", "demo", "hydra.run.dir=c", "seed=6"})
+          .exit_code,
+      0);
   EXPECT_NE(ReadFile(dir / "a/metrics.csv"), ReadFile(dir / "c/metrics.csv"));
 }
 
@@ -316,6 +325,8 @@ TEST(Cli, FailedJobDoesNotStopTheSweep) {
   const CommandResult r = RunSoma(dir,
                                   {"-cp",
                                    ConfigsDir(),
+                                   "-cn",
+                                   "demo",
                                    "-m",
                                    "task.fail_at_step=-1,2,-1",
                                    "task.steps=4",
@@ -338,6 +349,8 @@ TEST(Cli, SeedRepeatsAreAggregated) {
   const CommandResult r = RunSoma(dir,
                                   {"-cp",
                                    ConfigsDir(),
+                                   "-cn",
+                                   "demo",
                                    "-m",
                                    "task.lr=0.1,0.3",
                                    "seed=range(3)",
@@ -356,6 +369,8 @@ TEST(Cli, ParallelLauncherRunsEveryJob) {
   const CommandResult r = RunSoma(dir,
                                   {"-cp",
                                    ConfigsDir(),
+                                   "-cn",
+                                   "demo",
                                    "-m",
                                    "seed=range(4)",
                                    "task.steps=3",
