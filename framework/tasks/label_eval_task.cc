@@ -22,7 +22,6 @@
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
-#include "framework/core/resources.h"
 #include "framework/core/timer.h"
 #include "framework/registry/registry.h"
 #include "framework/synth/corruption.h"
@@ -92,15 +91,13 @@ class LabelEvalTask : public Task {
     std::string checkpoint = options_.checkpoint;
     std::string labeller = checkpoint;
     if (checkpoint.empty()) {
-      const std::vector<BundledModel> bundled =
-          ListBundledModels(ResourcePath("models"));
-      const ModelChoice choice = ChooseBundledModel(
-          bundled, SummarizeCapture(options_.input), options_.model);
+      const BundledChoice choice = ChooseInstalledModel(
+          SummarizeCapture(options_.input), options_.model);
       SOMA_LOG(INFO, "label_eval: {}", choice.reason);
-      checkpoint = choice.model->checkpoint.string();
+      checkpoint = choice.model.checkpoint.string();
       labeller = fmt::format("bundled model `{}` ({})",
-                             choice.model->name,
-                             choice.model->description);
+                             choice.model.name,
+                             choice.model.description);
     }
     const CheckpointInfo info = ReadCheckpointInfo(checkpoint);
 

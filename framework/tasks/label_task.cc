@@ -29,7 +29,6 @@
 #include "framework/core/error.h"
 #include "framework/core/logging.h"
 #include "framework/core/progress.h"
-#include "framework/core/resources.h"
 #include "framework/core/timer.h"
 #include "framework/io/c3d.h"
 #include "framework/io/mocap_dataset.h"
@@ -129,14 +128,12 @@ class LabelTask : public Task {
     }
     const C3dData c3d = ReadC3d(options_.input);
     if (options_.checkpoint.empty()) {
-      const std::vector<BundledModel> bundled =
-          ListBundledModels(ResourcePath("models"));
       CaptureSummary capture = SummarizeCapture(c3d);
       capture.name = options_.input;
-      const ModelChoice choice =
-          ChooseBundledModel(bundled, capture, options_.model);
+      const BundledChoice choice =
+          ChooseInstalledModel(capture, options_.model);
       SOMA_LOG(INFO, "label: {}", choice.reason);
-      options_.checkpoint = choice.model->checkpoint.string();
+      options_.checkpoint = choice.model.checkpoint.string();
     }
     const CheckpointInfo info = ReadCheckpointInfo(options_.checkpoint);
     Labeler model = LoadLabelerFromCheckpoint(options_.checkpoint);

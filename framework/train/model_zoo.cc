@@ -5,6 +5,7 @@
 #include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
+#include "framework/core/resources.h"
 #include "framework/io/c3d.h"
 #include "framework/train/trainer.h"
 
@@ -360,6 +361,14 @@ ModelChoice ChooseBundledModel(const std::vector<BundledModel>& models,
         "; '{}' matches as well (task.model={})", best[i]->name, best[i]->name);
   }
   return {best.front(), reason};
+}
+
+BundledChoice ChooseInstalledModel(const CaptureSummary& capture,
+                                   const std::string& requested) {
+  const std::vector<BundledModel> models =
+      ListBundledModels(ResourcePath("models"));
+  const ModelChoice choice = ChooseBundledModel(models, capture, requested);
+  return {*choice.model, choice.reason};
 }
 
 }  // namespace soma

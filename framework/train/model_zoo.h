@@ -128,6 +128,18 @@ ModelChoice ChooseBundledModel(const std::vector<BundledModel>& models,
                                const std::string& requested,
                                const std::string& capture_name);
 
+/// The bundled model chosen for a capture, copied out of the listing.
+struct BundledChoice {
+  BundledModel model;
+  std::string reason;  // one line, for the log
+};
+
+/// ChooseBundledModel among the models of the resource root's `models/`
+/// (framework/core/resources.h): what `soma label` and `soma label_eval`
+/// use when no checkpoint is given.
+BundledChoice ChooseInstalledModel(const CaptureSummary& capture,
+                                   const std::string& requested);
+
 /// "cmu41 (layout cmu41, 41 labels), hdm05 (...)" or "none".
 std::string DescribeBundledModels(const std::vector<BundledModel>& models);
 
