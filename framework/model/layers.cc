@@ -2,6 +2,7 @@
 
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
+#include "framework/model/fast_train.h"
 #include "framework/model/register.h"
 #include "framework/registry/registry.h"
 
@@ -158,6 +159,19 @@ torch::Tensor SelfAttentionImpl::forward(
   return h;
 }
 
+std::unique_ptr<fast::BackboneOp> BackboneImpl::MakeFastTrainOp(
+    std::string* why_not) {
+  if (why_not != nullptr) {
+    *why_not = fmt::format("the backbone {} has no fast training path", name());
+  }
+  return nullptr;
+}
+
+std::unique_ptr<fast::BackboneOp> SelfAttentionImpl::MakeFastTrainOp(
+    std::string* /*why_not*/) {
+  return std::make_unique<fast::SelfAttentionOp>(*this);
+}
+
 void Conv1dBackboneOptions::Validate() const {
   if (d_model <= 0) ThrowInvalid("", "d_model", d_model, "d_model > 0");
   if (num_layers < 0)
@@ -191,6 +205,11 @@ Conv1dBackboneImpl::Conv1dBackboneImpl(const Conv1dBackboneOptions& options)
     blocks_.push_back(std::move(block));
   }
   register_module("res_conv1d_blocks", list);
+}
+
+std::unique_ptr<fast::BackboneOp> Conv1dBackboneImpl::MakeFastTrainOp(
+    std::string* /*why_not*/) {
+  return std::make_unique<fast::Conv1dBackboneOp>(*this);
 }
 
 torch::Tensor Conv1dBackboneImpl::forward(

@@ -19,11 +19,16 @@
 
 #include <cstdint>
 #include <memory>
+#include <string>
 #include <string_view>
 #include <utility>
 #include <vector>
 
 namespace soma {
+
+namespace fast {
+class BackboneOp;
+}  // namespace fast
 
 /// ResConv1DBlock(Cin, Cout, hidden) (REFERENCE 1.2):
 ///   main     = conv(Cin->hidden) -> BN -> ReLU -> conv(hidden->Cout) -> BN
@@ -100,6 +105,12 @@ class BackboneImpl : public torch::nn::Module {
   virtual torch::Tensor forward(const torch::Tensor& x,
                                 std::vector<torch::Tensor>* attention) = 0;
   virtual int64_t d_model() const = 0;
+  /// This backbone's path in the hand-written training engine
+  /// (fast_train.h), operating on this module's parameters; nullptr with
+  /// the reason in `*why_not` when it has none (the default: a new backbone
+  /// trains on the torch engine until it provides one).
+  virtual std::unique_ptr<fast::BackboneOp> MakeFastTrainOp(
+      std::string* why_not);
 };
 TORCH_MODULE(Backbone);
 
@@ -119,6 +130,8 @@ class SelfAttentionImpl : public BackboneImpl {
   torch::Tensor forward(const torch::Tensor& x,
                         std::vector<torch::Tensor>* attention) override;
   int64_t d_model() const override { return options_.d_model; }
+  std::unique_ptr<fast::BackboneOp> MakeFastTrainOp(
+      std::string* why_not) override;
   const SelfAttentionOptions& options() const { return options_; }
   const std::vector<MultiHeadAttention>& layers() const { return layers_; }
 
@@ -147,6 +160,8 @@ class Conv1dBackboneImpl : public BackboneImpl {
   torch::Tensor forward(const torch::Tensor& x,
                         std::vector<torch::Tensor>* attention) override;
   int64_t d_model() const override { return options_.d_model; }
+  std::unique_ptr<fast::BackboneOp> MakeFastTrainOp(
+      std::string* why_not) override;
   const Conv1dBackboneOptions& options() const { return options_; }
 
   /// One residual block's layers (registered inside a Sequential).

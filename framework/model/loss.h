@@ -67,6 +67,11 @@ class LabelingLoss {
   /// The batch loss (0-dim) of A' (`log_assignment`) against `targets`.
   virtual at::Tensor Compute(const at::Tensor& log_assignment,
                              const AugmentedTargets& targets) const = 0;
+  /// True if the hand-written training engine (fast_train.h) computes this
+  /// loss, with its options in `*options`; false (the default) otherwise.
+  virtual bool FastOptions(LabelingLossOptions* /*options*/) const {
+    return false;
+  }
 };
 
 /// `name: soma`: ComputeLabelingLoss with LabelingLossOptions.
@@ -76,6 +81,10 @@ class SomaLabelingLoss : public LabelingLoss {
       : options_(options) {}
   at::Tensor Compute(const at::Tensor& log_assignment,
                      const AugmentedTargets& targets) const override;
+  bool FastOptions(LabelingLossOptions* options) const override {
+    *options = options_;
+    return true;
+  }
   const LabelingLossOptions& options() const { return options_; }
 
  private:

@@ -2,6 +2,8 @@
 
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
+#include "framework/model/fast_train.h"
+#include "framework/model/loss.h"
 #include "framework/model/register.h"
 #include "framework/model/torch_utils.h"
 #include "framework/registry/registry.h"
@@ -77,6 +79,42 @@ torch::Tensor SinkhornImpl::forward(const torch::Tensor& scores) {
 
 torch::Tensor LogSoftmaxImpl::forward(const torch::Tensor& scores) {
   return torch::log_softmax(scores, -1);
+}
+
+std::unique_ptr<fast::NormalizationLossOp> NormalizationImpl::MakeFastLossOp(
+    const LabelingLoss& /*loss*/, std::string* why_not) {
+  if (why_not != nullptr) {
+    *why_not =
+        fmt::format("the normalization {} has no fast training path", name());
+  }
+  return nullptr;
+}
+
+namespace {
+
+/// The loss's options if it has a fast path, else nullptr with the reason.
+bool FastLossOptions(const LabelingLoss& loss,
+                     LabelingLossOptions* options,
+                     std::string* why_not) {
+  if (loss.FastOptions(options)) return true;
+  if (why_not != nullptr) *why_not = "the loss has no fast training path";
+  return false;
+}
+
+}  // namespace
+
+std::unique_ptr<fast::NormalizationLossOp> SinkhornImpl::MakeFastLossOp(
+    const LabelingLoss& loss, std::string* why_not) {
+  LabelingLossOptions options;
+  if (!FastLossOptions(loss, &options, why_not)) return nullptr;
+  return fast::MakeSinkhornLossOp(bin_score, options_.num_iters);
+}
+
+std::unique_ptr<fast::NormalizationLossOp> LogSoftmaxImpl::MakeFastLossOp(
+    const LabelingLoss& loss, std::string* why_not) {
+  LabelingLossOptions options;
+  if (!FastLossOptions(loss, &options, why_not)) return nullptr;
+  return fast::MakeLogSoftmaxLossOp(options);
 }
 
 void RegisterNormalizations() {

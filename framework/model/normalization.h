@@ -7,9 +7,16 @@
 #include <torch/nn/pimpl.h>
 
 #include <cstdint>
+#include <memory>
+#include <string>
 #include <string_view>
 
 namespace soma {
+
+class LabelingLoss;
+namespace fast {
+class NormalizationLossOp;
+}  // namespace fast
 
 /// Turns the score matrix S (`B x N x C`) into the augmented log assignment
 /// A'. Registry kind "normalization" (configs/normalization/).
@@ -26,6 +33,11 @@ class NormalizationImpl : public torch::nn::Module {
   /// the dustbin row, else `B x N x (L+1)`; log values whose point rows are
   /// log-distributions over the L+1 columns.
   virtual torch::Tensor forward(const torch::Tensor& scores) = 0;
+  /// This normalization followed by `loss` in the hand-written training
+  /// engine (fast_train.h); nullptr with the reason in `*why_not` when
+  /// either has no fast path (the default).
+  virtual std::unique_ptr<fast::NormalizationLossOp> MakeFastLossOp(
+      const LabelingLoss& loss, std::string* why_not);
 };
 TORCH_MODULE(Normalization);
 
@@ -46,6 +58,8 @@ class SinkhornImpl : public NormalizationImpl {
   }
   bool HasDustbinRow() const override { return true; }
   torch::Tensor forward(const torch::Tensor& scores) override;
+  std::unique_ptr<fast::NormalizationLossOp> MakeFastLossOp(
+      const LabelingLoss& loss, std::string* why_not) override;
   const SinkhornOptions& options() const { return options_; }
 
   torch::Tensor bin_score;
@@ -63,6 +77,8 @@ class LogSoftmaxImpl : public NormalizationImpl {
   }
   bool HasDustbinRow() const override { return false; }
   torch::Tensor forward(const torch::Tensor& scores) override;
+  std::unique_ptr<fast::NormalizationLossOp> MakeFastLossOp(
+      const LabelingLoss& loss, std::string* why_not) override;
 };
 TORCH_MODULE(LogSoftmax);
 

@@ -8,6 +8,7 @@
 #include "framework/core/progress.h"
 #include "framework/core/random.h"
 #include "framework/core/timer.h"
+#include "framework/model/fast_train.h"
 #include "framework/model/inference.h"
 #include "framework/model/loss.h"
 #include "framework/registry/registry.h"
@@ -268,6 +269,9 @@ void TrainerOptions::Validate() const {
   }
   if (data_threads < 1) fail("data_threads", data_threads, "data_threads >= 1");
   if (prefetch < 0) fail("prefetch", prefetch, "prefetch >= 0");
+  if (engine != "fast" && engine != "torch") {
+    fail("engine", engine, "engine is fast or torch");
+  }
   early_stopping.Validate();
 }
 
@@ -283,6 +287,7 @@ TrainerOptions DecodeTrainerOptions(const ConfigNode& node) {
   reader.Read("data_threads", &options.data_threads);
   reader.Read("prefetch", &options.prefetch);
   reader.Read("progress", &options.progress);
+  reader.Read("engine", &options.engine);
   if (const ConfigNode* resume = reader.Child("resume");
       resume != nullptr && !resume->IsNull()) {
     if (resume->IsBool()) {
@@ -309,6 +314,9 @@ TrainerOptions DecodeTrainerOptions(const ConfigNode& node) {
                "synth_data is pool or stream");
   reader.Check("data_threads", options.data_threads >= 1, "data_threads >= 1");
   reader.Check("prefetch", options.prefetch >= 0, "prefetch >= 0");
+  reader.Check("engine",
+               options.engine == "fast" || options.engine == "torch",
+               "engine is fast or torch");
   reader.Finish();
   return options;
 }
@@ -513,6 +521,16 @@ Trainer::Trainer(TrainerOptions options,
   SOMA_CHECK_EQ(static_cast<int64_t>(identity_.labels.size()),
                 model_->num_labels());
   CreateDirectories(run_dir_ / "checkpoints");
+  if (options_.engine == "fast") {
+    std::string why_not;
+    fast_ = FastTrainer::Create(*model_, *loss_, {}, &why_not);
+    if (fast_ == nullptr) {
+      SOMA_LOG(WARNING,
+               "train: engine=fast cannot train this model ({}); using the "
+               "torch engine",
+               why_not);
+    }
+  }
 }
 
 Trainer::~Trainer() = default;
@@ -717,6 +735,16 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
           .label = "train", .unit = "frames", .enabled = options_.progress});
   const Rng torch_stream = Rng(options_.seed).Stream("torch");
   model_->train();
+  SOMA_LOG(INFO,
+           "train: {} engine{}, {} intra-op thread(s)",
+           engine(),
+           fast_ != nullptr
+               ? fmt::format(" ({} kernels)",
+                             fast_->isa() == internal::KernelIsa::kAvx512
+                                 ? "AVX-512"
+                                 : "portable")
+               : "",
+           at::get_num_threads());
 
   while (state.epoch < options_.max_epochs) {
     const int epoch = state.epoch;  // 0-based index of the epoch being run
@@ -740,10 +768,17 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
         torch::manual_seed(
             epoch_stream.Stream(static_cast<uint64_t>(b)).seed());
         const Tensors t = ToTensors(frames);
-        const LabelerOutput out = model_->forward(t.points);
-        const torch::Tensor loss = loss_->Compute(
-            out.log_assignment, BuildAugmentedTargets(t.labels, num_labels));
-        const double value = loss.item<double>();
+        // Forward and loss (the fast engine also computes the gradients).
+        torch::Tensor loss;
+        double value = 0.0;
+        if (fast_ != nullptr) {
+          value = fast_->Step(t.points, t.labels);
+        } else {
+          const LabelerOutput out = model_->forward(t.points);
+          loss = loss_->Compute(out.log_assignment,
+                                BuildAugmentedTargets(t.labels, num_labels));
+          value = loss.item<double>();
+        }
         if (!std::isfinite(value)) {
           const std::string message = fmt::format(
               "non-finite loss at epoch {} step {} batch {}/{} (loss = {})",
@@ -756,9 +791,13 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
           progress.Finish();
           return finish(TrainSummary::Termination::kNonFiniteLoss, message);
         }
-        optimizer_->zero_grad();
-        loss.backward();
-        optimizer_->step();
+        if (fast_ != nullptr) {
+          if (!FusedAdamStep(*optimizer_)) optimizer_->step();
+        } else {
+          optimizer_->zero_grad();
+          loss.backward();
+          optimizer_->step();
+        }
         ++state.step;
         loss_sum += value;
         progress.Update(

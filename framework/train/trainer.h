@@ -47,6 +47,7 @@ class Optimizer;
 namespace soma {
 
 class BatchSource;
+class FastTrainer;
 class LabelingLoss;
 class OptimizerSpec;
 
@@ -72,7 +73,11 @@ struct TrainerOptions {
   /// Fine-tuning: a checkpoint whose weights (only) initialise the model.
   /// Ignored when resuming.
   std::string init_from;
-  bool progress = true;   // progress bar on stderr
+  bool progress = true;  // progress bar on stderr
+  /// "fast": the hand-written training engine (model/fast_train.h) where
+  /// the model supports it, else torch with a logged reason; "torch":
+  /// libtorch autograd and torch::optim.
+  std::string engine = "fast";
   uint64_t seed = 0;      // root seed (from the run, not the `train` group)
   void Validate() const;  // ConfigError on violation
 };
@@ -201,6 +206,8 @@ class Trainer {
   TrainSummary Train(const BatchSource& train, const BatchSource& val);
 
   const Labeler& model() const { return model_; }
+  /// The engine the steps run on: "fast" or "torch" (after a fallback).
+  std::string engine() const { return fast_ != nullptr ? "fast" : "torch"; }
   torch::optim::Optimizer& optimizer() { return *optimizer_; }
   std::filesystem::path last_checkpoint() const;
   std::filesystem::path best_checkpoint() const;
@@ -221,6 +228,7 @@ class Trainer {
   ModelIdentity identity_;
   std::filesystem::path run_dir_;
   Callbacks callbacks_;
+  std::unique_ptr<FastTrainer> fast_;  // null: the torch engine
 };
 
 /// Registers the optimizers, schedulers and the `train` config group.

@@ -1,0 +1,1444 @@
+#include "framework/model/fast_train.h"
+
+#include "framework/core/error.h"
+#include "framework/model/labeler.h"
+#include "framework/model/layers.h"
+#include "framework/model/normalization.h"
+
+#include <ATen/Parallel.h>
+#include <fmt/format.h>
+#include <torch/optim/adam.h>
+#include <torch/torch.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <utility>
+
+namespace soma {
+namespace fast {
+namespace {
+
+using internal::GemmEpilogue;
+using internal::GemmPacked;
+using internal::NumPanels;
+using internal::RoundUp16;
+using internal::WeightView;
+
+/// Rows per dW accumulation chunk: the chunk of the input (the GEMM's
+/// "weights") stays in L2 while every output row tile reads it.
+constexpr int64_t kReductionChunk = 256;
+/// Minimum rows per thread in row-parallel GEMMs and elementwise passes.
+constexpr int64_t kRowGrain = 64;
+
+/// `f(begin, end)` over [0, n) split across torch's intra-op threads.
+template <typename F>
+void ParallelRows(int64_t n, int64_t grain, const F& f) {
+  if (n <= 0) return;
+  at::parallel_for(0, n, grain, f);
+}
+
+/// `f(chunk, begin, end)` over [0, n) split into one range per thread (for
+/// reductions into per-chunk partials); returns the number of chunks.
+template <typename F>
+int64_t ParallelChunks(int64_t n, const F& f) {
+  const int64_t chunks = std::max<int64_t>(
+      1, std::min<int64_t>(at::get_num_threads(), n / kRowGrain));
+  at::parallel_for(0, chunks, 1, [&](int64_t begin, int64_t end) {
+    for (int64_t c = begin; c < end; ++c) {
+      f(c, n * c / chunks, n * (c + 1) / chunks);
+    }
+  });
+  return chunks;
+}
+
+GemmEpilogue OffsetEpilogue(const GemmEpilogue& ep, int64_t r0) {
+  GemmEpilogue out = ep;
+  if (ep.residual != nullptr) out.residual = ep.residual + r0 * ep.ld_residual;
+  if (ep.row_scale != nullptr) out.row_scale = ep.row_scale + r0;
+  return out;
+}
+
+/// `dst[c][r] = src[r][c]` for `rows x cols` (blocked).
+void Transpose(const float* src,
+               int64_t lds,
+               int64_t rows,
+               int64_t cols,
+               float* dst,
+               int64_t ldd) {
+  constexpr int64_t kBlock = 16;
+  for (int64_t r0 = 0; r0 < rows; r0 += kBlock) {
+    const int64_t r1 = std::min(rows, r0 + kBlock);
+    for (int64_t c0 = 0; c0 < cols; c0 += kBlock) {
+      const int64_t c1 = std::min(cols, c0 + kBlock);
+      for (int64_t r = r0; r < r1; ++r) {
+        const float* s = src + r * lds;
+        for (int64_t c = c0; c < c1; ++c) dst[c * ldd + r] = s[c];
+      }
+    }
+  }
+}
+
+float* Grad(at::Tensor& parameter) {
+  at::Tensor& grad = parameter.mutable_grad();
+  if (!grad.defined() || !grad.sizes().equals(parameter.sizes())) {
+    grad = torch::zeros_like(parameter);
+  }
+  SOMA_CHECK(grad.is_contiguous() && grad.scalar_type() == torch::kFloat)
+      << "fast training needs contiguous float gradients";
+  return grad.data_ptr<float>();
+}
+
+const float* Data(const at::Tensor& parameter) {
+  SOMA_CHECK(parameter.defined() && parameter.is_contiguous() &&
+             parameter.scalar_type() == torch::kFloat &&
+             parameter.device().is_cpu())
+      << "fast training needs contiguous float CPU parameters";
+  return parameter.data_ptr<float>();
+}
+
+std::vector<int64_t> Identity(int64_t n) {
+  std::vector<int64_t> order(static_cast<size_t>(n));
+  for (int64_t i = 0; i < n; ++i) order[static_cast<size_t>(i)] = i;
+  return order;
+}
+
+/// Head-major position `head * dh + d` -> interleaved channel `d * h + head`.
+std::vector<int64_t> HeadMajorOrder(int64_t d_model, int64_t heads) {
+  const int64_t dh = d_model / heads;
+  std::vector<int64_t> order(static_cast<size_t>(d_model));
+  for (int64_t head = 0; head < heads; ++head) {
+    for (int64_t j = 0; j < dh; ++j) {
+      order[static_cast<size_t>(head * dh + j)] = j * heads + head;
+    }
+  }
+  return order;
+}
+
+/// `y = max(x, 0)` elementwise (`rows x cols`).
+void Relu(const Mat& x, Mat& y) {
+  y.Resize(x.rows, x.cols);
+  ParallelRows(x.rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t r = begin; r < end; ++r) {
+      const float* s = x.row(r);
+      float* d = y.row(r);
+      for (int64_t c = 0; c < x.cols; ++c) d[c] = std::max(s[c], 0.0f);
+    }
+  });
+}
+
+/// `dy *= (mask > 0)` elementwise.
+void ReluBackwardInPlace(const Mat& mask, Mat& dy) {
+  ParallelRows(dy.rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t r = begin; r < end; ++r) {
+      const float* m = mask.row(r);
+      float* d = dy.row(r);
+      for (int64_t c = 0; c < dy.cols; ++c) {
+        if (!(m[c] > 0.0f)) d[c] = 0.0f;
+      }
+    }
+  });
+}
+
+/// `y += x` elementwise over the first `cols` columns.
+void AddInPlace(const float* x,
+                int64_t ldx,
+                int64_t rows,
+                int64_t cols,
+                float* y,
+                int64_t ldy) {
+  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t r = begin; r < end; ++r) {
+      const float* s = x + r * ldx;
+      float* d = y + r * ldy;
+      for (int64_t c = 0; c < cols; ++c) d[c] += s[c];
+    }
+  });
+}
+
+void CopyColumns(const float* x,
+                 int64_t ldx,
+                 int64_t rows,
+                 int64_t cols,
+                 float* y,
+                 int64_t ldy) {
+  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t r = begin; r < end; ++r) {
+      std::memcpy(y + r * ldy, x + r * ldx, sizeof(float) * cols);
+    }
+  });
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------
+// Mat
+
+void Mat::Resize(int64_t num_rows, int64_t num_cols) {
+  rows = num_rows;
+  cols = num_cols;
+  ld = RoundUp16(num_cols) + 16;
+  buf.Resize(static_cast<size_t>(std::max<int64_t>(1, rows) * ld + 16));
+}
+
+// ---------------------------------------------------------------------------
+// LinearOp
+
+LinearOp::LinearOp(std::vector<Part> parts, std::vector<int64_t> in_order)
+    : parts_(std::move(parts)), in_order_(std::move(in_order)) {
+  SOMA_CHECK(!parts_.empty());
+  for (Part& part : parts_) {
+    SOMA_CHECK(part.conv != nullptr);
+    const at::Tensor& w = part.conv->weight;
+    SOMA_CHECK(w.dim() == 3 && w.size(2) == 1)
+        << "fast training supports kernel-size-1 convolutions only";
+    SOMA_CHECK(part.conv->bias.defined())
+        << "fast training needs convolutions with a bias";
+    if (in_ == 0) in_ = w.size(1);
+    SOMA_CHECK_EQ(w.size(1), in_);
+    if (part.out_order.empty()) part.out_order = Identity(w.size(0));
+    SOMA_CHECK_EQ(static_cast<int64_t>(part.out_order.size()), w.size(0));
+    out_ += w.size(0);
+  }
+  if (in_order_.empty()) in_order_ = Identity(in_);
+  SOMA_CHECK_EQ(static_cast<int64_t>(in_order_.size()), in_);
+}
+
+void LinearOp::Pack() {
+  const int64_t mp = RoundUp16(out_);
+  const int64_t kp = RoundUp16(in_);
+  wt_.Resize(static_cast<size_t>(in_ * mp + 16));
+  bias_.Resize(static_cast<size_t>(mp));
+  w_.Resize(static_cast<size_t>(out_ * kp + 16));
+  int64_t row = 0;
+  for (const Part& part : parts_) {
+    const float* w = Data(part.conv->weight);
+    const float* b = Data(part.conv->bias);
+    const int64_t m = part.conv->weight.size(0);
+    for (int64_t i = 0; i < m; ++i) {
+      const int64_t src = part.out_order[static_cast<size_t>(i)];
+      const float* wr = w + src * in_;
+      float* dst = w_.data() + (row + i) * kp;
+      for (int64_t k = 0; k < in_; ++k) {
+        const float value = wr[in_order_[static_cast<size_t>(k)]];
+        dst[k] = value;
+        wt_.data()[k * mp + row + i] = value;
+      }
+      bias_.data()[row + i] = b[src];
+    }
+    row += m;
+  }
+}
+
+void LinearOp::Forward(const Context& ctx,
+                       const float* x,
+                       int64_t ldx,
+                       int64_t rows,
+                       float* y,
+                       int64_t ldy,
+                       const GemmEpilogue& epilogue) const {
+  const WeightView w{wt_.data(), 16, RoundUp16(out_), bias_.data(), out_, in_};
+  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    GemmPacked(ctx.isa,
+               x + begin * ldx,
+               ldx,
+               end - begin,
+               w,
+               y + begin * ldy,
+               ldy,
+               OffsetEpilogue(epilogue, begin),
+               0,
+               NumPanels(out_));
+  });
+}
+
+void LinearOp::Backward(const Context& ctx,
+                        const float* x,
+                        int64_t ldx,
+                        const float* dy,
+                        int64_t ldy,
+                        int64_t rows,
+                        float* dx,
+                        int64_t lddx,
+                        bool accumulate) {
+  const int64_t kp = RoundUp16(in_);
+  const int64_t ldt = RoundUp16(rows);
+  dyt_.Resize(static_cast<size_t>(out_ * ldt + 16));
+  dw_.Resize(static_cast<size_t>(out_ * kp + 16));
+  // dy^T and the bias gradient (per-chunk partial column sums).
+  std::vector<std::vector<double>> partial(
+      static_cast<size_t>(at::get_num_threads() + 1));
+  const int64_t chunks =
+      ParallelChunks(rows, [&](int64_t chunk, int64_t begin, int64_t end) {
+        std::vector<double>& sums = partial[static_cast<size_t>(chunk)];
+        sums.assign(static_cast<size_t>(out_), 0.0);
+        for (int64_t r = begin; r < end; ++r) {
+          const float* d = dy + r * ldy;
+          for (int64_t m = 0; m < out_; ++m)
+            sums[static_cast<size_t>(m)] += d[m];
+        }
+        Transpose(
+            dy + begin * ldy, ldy, end - begin, out_, dyt_.data() + begin, ldt);
+      });
+  db_.assign(static_cast<size_t>(out_), 0.0);
+  for (int64_t c = 0; c < chunks; ++c) {
+    for (int64_t m = 0; m < out_; ++m) {
+      db_[static_cast<size_t>(m)] +=
+          partial[static_cast<size_t>(c)][static_cast<size_t>(m)];
+    }
+  }
+  // dW = dy^T x, accumulated over chunks of rows; threads split the output
+  // rows (multiples of 8, the micro-kernel's row tile).
+  const int64_t row_tiles = (out_ + 7) / 8;
+  at::parallel_for(0, row_tiles, 1, [&](int64_t begin, int64_t end) {
+    const int64_t m0 = begin * 8;
+    const int64_t m1 = std::min(out_, end * 8);
+    float* dw = dw_.data() + m0 * kp;
+    for (int64_t c0 = 0; c0 < rows; c0 += kReductionChunk) {
+      const int64_t cn = std::min(kReductionChunk, rows - c0);
+      GemmEpilogue ep;
+      if (c0 > 0) {
+        ep.residual = dw;
+        ep.ld_residual = kp;
+      }
+      GemmPacked(ctx.isa,
+                 dyt_.data() + m0 * ldt + c0,
+                 ldt,
+                 m1 - m0,
+                 WeightView{x + c0 * ldx, 16, ldx, nullptr, in_, cn},
+                 dw,
+                 kp,
+                 ep,
+                 0,
+                 NumPanels(in_));
+    }
+    if (rows == 0) {
+      for (int64_t m = m0; m < m1; ++m) {
+        std::fill(dw_.data() + m * kp, dw_.data() + m * kp + in_, 0.0f);
+      }
+    }
+  });
+  // Scatter into torch's layout.
+  int64_t row = 0;
+  for (Part& part : parts_) {
+    float* gw = Grad(part.conv->weight);
+    float* gb = Grad(part.conv->bias);
+    const int64_t m = part.conv->weight.size(0);
+    for (int64_t i = 0; i < m; ++i) {
+      const int64_t dst = part.out_order[static_cast<size_t>(i)];
+      const float* src = dw_.data() + (row + i) * kp;
+      float* gr = gw + dst * in_;
+      for (int64_t k = 0; k < in_; ++k) {
+        gr[in_order_[static_cast<size_t>(k)]] = src[k];
+      }
+      gb[dst] = static_cast<float>(db_[static_cast<size_t>(row + i)]);
+    }
+    row += m;
+  }
+  if (dx == nullptr) return;
+  // dx = dy W.
+  const WeightView w{w_.data(), 16, kp, nullptr, in_, out_};
+  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    GemmEpilogue ep;
+    if (accumulate) {
+      ep.residual = dx + begin * lddx;
+      ep.ld_residual = lddx;
+    }
+    GemmPacked(ctx.isa,
+               dy + begin * ldy,
+               ldy,
+               end - begin,
+               w,
+               dx + begin * lddx,
+               lddx,
+               ep,
+               0,
+               NumPanels(in_));
+  });
+}
+
+// ---------------------------------------------------------------------------
+// BatchNormOp
+
+BatchNormOp::BatchNormOp(torch::nn::BatchNorm1dImpl* bn) : bn_(bn) {
+  SOMA_CHECK(bn_ != nullptr);
+  const auto& options = bn_->options;
+  SOMA_CHECK(options.affine() && options.track_running_stats())
+      << "fast training needs affine BatchNorm with running statistics";
+  SOMA_CHECK(options.momentum().has_value())
+      << "fast training needs a BatchNorm momentum (not a cumulative average)";
+  channels_ = options.num_features();
+  eps_ = options.eps();
+  momentum_ = *options.momentum();
+}
+
+void BatchNormOp::Forward(const Context& /*ctx*/,
+                          const float* y,
+                          int64_t ldy,
+                          int64_t rows,
+                          const float* add,
+                          int64_t ldadd,
+                          bool relu,
+                          float scale,
+                          float* out,
+                          int64_t ldout) {
+  SOMA_CHECK(rows > 1) << "BatchNorm in training mode needs more than one "
+                          "value per channel (got "
+                       << rows << " points in the batch)";
+  const int64_t c_count = channels_;
+  relu_ = relu;
+  scale_ = scale;
+  // Batch statistics, shifted by the first row against cancellation.
+  std::vector<std::vector<double>> partial(
+      static_cast<size_t>(at::get_num_threads() + 1));
+  const int64_t chunks =
+      ParallelChunks(rows, [&](int64_t chunk, int64_t begin, int64_t end) {
+        std::vector<double>& sums = partial[static_cast<size_t>(chunk)];
+        sums.assign(static_cast<size_t>(2 * c_count), 0.0);
+        double* s1 = sums.data();
+        double* s2 = sums.data() + c_count;
+        for (int64_t r = begin; r < end; ++r) {
+          const float* v = y + r * ldy;
+          for (int64_t c = 0; c < c_count; ++c) {
+            const double d = static_cast<double>(v[c]) - y[c];
+            s1[c] += d;
+            s2[c] += d * d;
+          }
+        }
+      });
+  mean_.resize(static_cast<size_t>(c_count));
+  inv_std_.resize(static_cast<size_t>(c_count));
+  gamma_.resize(static_cast<size_t>(c_count));
+  beta_.resize(static_cast<size_t>(c_count));
+  const float* weight = Data(bn_->weight);
+  const float* bias = Data(bn_->bias);
+  float* running_mean = bn_->running_mean.data_ptr<float>();
+  float* running_var = bn_->running_var.data_ptr<float>();
+  const double n = static_cast<double>(rows);
+  for (int64_t c = 0; c < c_count; ++c) {
+    double s1 = 0, s2 = 0;
+    for (int64_t k = 0; k < chunks; ++k) {
+      s1 += partial[static_cast<size_t>(k)][static_cast<size_t>(c)];
+      s2 += partial[static_cast<size_t>(k)][static_cast<size_t>(c_count + c)];
+    }
+    const double shifted_mean = s1 / n;
+    const double var = std::max(0.0, s2 / n - shifted_mean * shifted_mean);
+    const double mean = shifted_mean + y[c];
+    const size_t i = static_cast<size_t>(c);
+    mean_[i] = static_cast<float>(mean);
+    inv_std_[i] = static_cast<float>(1.0 / std::sqrt(var + eps_));
+    gamma_[i] = weight[c];
+    beta_[i] = bias[c];
+    running_mean[c] = static_cast<float>((1.0 - momentum_) * running_mean[c] +
+                                         momentum_ * mean);
+    running_var[c] = static_cast<float>((1.0 - momentum_) * running_var[c] +
+                                        momentum_ * var * n / (n - 1.0));
+  }
+  if (bn_->num_batches_tracked.defined()) bn_->num_batches_tracked.add_(1);
+  // Normalise, affine, addend, scale, ReLU.
+  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t r = begin; r < end; ++r) {
+      const float* v = y + r * ldy;
+      const float* a = add != nullptr ? add + r * ldadd : nullptr;
+      float* o = out + r * ldout;
+      for (int64_t c = 0; c < c_count; ++c) {
+        float value = gamma_[static_cast<size_t>(c)] *
+                          ((v[c] - mean_[static_cast<size_t>(c)]) *
+                           inv_std_[static_cast<size_t>(c)]) +
+                      beta_[static_cast<size_t>(c)];
+        if (a != nullptr) value += a[c];
+        value *= scale;
+        if (relu) value = std::max(value, 0.0f);
+        o[c] = value;
+      }
+    }
+  });
+}
+
+void BatchNormOp::Backward(const Context& /*ctx*/,
+                           const float* y,
+                           int64_t ldy,
+                           const float* out,
+                           int64_t ldout,
+                           const float* dout,
+                           int64_t lddout,
+                           int64_t rows,
+                           float* dy,
+                           int64_t lddy,
+                           float* dadd,
+                           int64_t lddadd) {
+  const int64_t c_count = channels_;
+  const float scale = scale_;
+  const bool relu = relu_;
+  // Pass 1: g = dout * scale * relu'(out) into dy (and dadd); per-channel
+  // sums of g and g * xhat.
+  std::vector<std::vector<double>> partial(
+      static_cast<size_t>(at::get_num_threads() + 1));
+  const int64_t chunks =
+      ParallelChunks(rows, [&](int64_t chunk, int64_t begin, int64_t end) {
+        std::vector<double>& sums = partial[static_cast<size_t>(chunk)];
+        sums.assign(static_cast<size_t>(2 * c_count), 0.0);
+        double* s1 = sums.data();
+        double* s2 = sums.data() + c_count;
+        for (int64_t r = begin; r < end; ++r) {
+          const float* v = y + r * ldy;
+          const float* o = out + r * ldout;
+          const float* d = dout + r * lddout;
+          float* g = dy + r * lddy;
+          float* ga = dadd != nullptr ? dadd + r * lddadd : nullptr;
+          for (int64_t c = 0; c < c_count; ++c) {
+            float value = d[c] * scale;
+            if (relu && !(o[c] > 0.0f)) value = 0.0f;
+            g[c] = value;
+            if (ga != nullptr) ga[c] = value;
+            const float xhat = (v[c] - mean_[static_cast<size_t>(c)]) *
+                               inv_std_[static_cast<size_t>(c)];
+            s1[c] += value;
+            s2[c] += static_cast<double>(value) * xhat;
+          }
+        }
+      });
+  std::vector<float> k1(static_cast<size_t>(c_count));
+  std::vector<float> k2(static_cast<size_t>(c_count));
+  std::vector<float> k0(static_cast<size_t>(c_count));
+  float* dgamma = Grad(bn_->weight);
+  float* dbeta = Grad(bn_->bias);
+  const double n = static_cast<double>(rows);
+  for (int64_t c = 0; c < c_count; ++c) {
+    double s1 = 0, s2 = 0;
+    for (int64_t k = 0; k < chunks; ++k) {
+      s1 += partial[static_cast<size_t>(k)][static_cast<size_t>(c)];
+      s2 += partial[static_cast<size_t>(k)][static_cast<size_t>(c_count + c)];
+    }
+    dgamma[c] = static_cast<float>(s2);
+    dbeta[c] = static_cast<float>(s1);
+    const size_t i = static_cast<size_t>(c);
+    k0[i] = gamma_[i] * inv_std_[i];
+    k1[i] = static_cast<float>(s1 / n);
+    k2[i] = static_cast<float>(s2 / n);
+  }
+  // Pass 2: dy = gamma / sigma * (g - mean(g) - xhat * mean(g * xhat)).
+  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t r = begin; r < end; ++r) {
+      const float* v = y + r * ldy;
+      float* g = dy + r * lddy;
+      for (int64_t c = 0; c < c_count; ++c) {
+        const size_t i = static_cast<size_t>(c);
+        const float xhat = (v[c] - mean_[i]) * inv_std_[i];
+        g[c] = k0[i] * (g[c] - k1[i] - xhat * k2[i]);
+      }
+    }
+  });
+}
+
+// ---------------------------------------------------------------------------
+// ResBlockOp
+
+namespace {
+
+std::vector<LinearOp::Part> FirstParts(ResConv1DBlockImpl& block) {
+  std::vector<LinearOp::Part> parts{{block.conv1.get(), {}}};
+  if (block.has_shortcut_conv()) {
+    parts.push_back({block.shortcut_conv.get(), {}});
+  }
+  return parts;
+}
+
+}  // namespace
+
+ResBlockOp::ResBlockOp(ResConv1DBlockImpl& block,
+                       bool relu_out,
+                       float out_scale)
+    : hidden_(block.conv1->weight.size(0)),
+      out_(block.out_channels()),
+      shortcut_(block.has_shortcut_conv()),
+      relu_out_(relu_out),
+      out_scale_(out_scale),
+      first_(FirstParts(block)),
+      second_(block.conv2.get()),
+      bn1_(block.bn1.get()),
+      bn2_(block.bn2.get()) {
+  if (shortcut_) {
+    bn_short_ = std::make_unique<BatchNormOp>(block.shortcut_bn.get());
+  }
+}
+
+void ResBlockOp::Pack() {
+  first_.Pack();
+  second_.Pack();
+}
+
+void ResBlockOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
+  const int64_t rows = x.rows;
+  z_.Resize(rows, first_.out_channels());
+  a_.Resize(rows, hidden_);
+  z2_.Resize(rows, out_);
+  y.Resize(rows, out_);
+  first_.Forward(ctx, x.data(), x.ld, rows, z_.data(), z_.ld);
+  bn1_.Forward(ctx,
+               z_.data(),
+               z_.ld,
+               rows,
+               nullptr,
+               0,
+               /*relu=*/true,
+               1.0f,
+               a_.data(),
+               a_.ld);
+  const float* add = x.data();
+  int64_t ldadd = x.ld;
+  if (shortcut_) {
+    s_.Resize(rows, out_);
+    bn_short_->Forward(ctx,
+                       z_.data() + hidden_,
+                       z_.ld,
+                       rows,
+                       nullptr,
+                       0,
+                       /*relu=*/false,
+                       1.0f,
+                       s_.data(),
+                       s_.ld);
+    add = s_.data();
+    ldadd = s_.ld;
+  }
+  second_.Forward(ctx, a_.data(), a_.ld, rows, z2_.data(), z2_.ld);
+  bn2_.Forward(ctx,
+               z2_.data(),
+               z2_.ld,
+               rows,
+               add,
+               ldadd,
+               relu_out_,
+               out_scale_,
+               y.data(),
+               y.ld);
+}
+
+void ResBlockOp::Backward(const Context& ctx,
+                          const Mat& x,
+                          const Mat& y,
+                          Mat& dy,
+                          Mat* dx,
+                          bool accumulate) {
+  const int64_t rows = x.rows;
+  g_.Resize(rows, out_);  // gradient of the addend (shortcut path)
+  dz_.Resize(rows, first_.out_channels());
+  // dy -> dz2 (in place) and g = d(addend).
+  bn2_.Backward(ctx,
+                z2_.data(),
+                z2_.ld,
+                y.data(),
+                y.ld,
+                dy.data(),
+                dy.ld,
+                rows,
+                dy.data(),
+                dy.ld,
+                g_.data(),
+                g_.ld);
+  // conv2: da into the hidden columns of dz.
+  second_.Backward(ctx,
+                   a_.data(),
+                   a_.ld,
+                   dy.data(),
+                   dy.ld,
+                   rows,
+                   dz_.data(),
+                   dz_.ld,
+                   /*accumulate=*/false);
+  bn1_.Backward(ctx,
+                z_.data(),
+                z_.ld,
+                a_.data(),
+                a_.ld,
+                dz_.data(),
+                dz_.ld,
+                rows,
+                dz_.data(),
+                dz_.ld,
+                nullptr,
+                0);
+  if (shortcut_) {
+    bn_short_->Backward(ctx,
+                        z_.data() + hidden_,
+                        z_.ld,
+                        s_.data(),
+                        s_.ld,
+                        g_.data(),
+                        g_.ld,
+                        rows,
+                        dz_.data() + hidden_,
+                        dz_.ld,
+                        nullptr,
+                        0);
+  }
+  if (dx != nullptr) dx->Resize(rows, x.cols);
+  first_.Backward(ctx,
+                  x.data(),
+                  x.ld,
+                  dz_.data(),
+                  dz_.ld,
+                  rows,
+                  dx != nullptr ? dx->data() : nullptr,
+                  dx != nullptr ? dx->ld : 0,
+                  accumulate);
+  if (dx != nullptr && !shortcut_) {
+    AddInPlace(g_.data(), g_.ld, rows, out_, dx->data(), dx->ld);
+  }
+}
+
+// ---------------------------------------------------------------------------
+// SelfAttentionOp
+
+struct SelfAttentionOp::Layer {
+  using Part = LinearOp::Part;
+
+  Layer(MultiHeadAttentionImpl& mha, const std::vector<int64_t>& order)
+      : qkv(std::vector<Part>{Part{mha.query.get(), order},
+                              Part{mha.key.get(), order},
+                              Part{mha.value.get(), order}}),
+        merge(std::vector<Part>{Part{mha.merge.get(), {}}}, order),
+        post1(mha.post_conv1.get()),
+        bn(mha.post_bn.get()),
+        post2(mha.post_conv2.get()) {}
+
+  void Pack() {
+    qkv.Pack();
+    merge.Pack();
+    post1.Pack();
+    post2.Pack();
+  }
+
+  LinearOp qkv;
+  LinearOp merge;
+  LinearOp post1;
+  BatchNormOp bn;
+  LinearOp post2;
+  Mat xcat;   // [merged | x]: the layer's input lives in columns [D, 2D)
+  Mat q;      // [q | k | v], head-major within each
+  Mat probs;  // softmax(q k^T / sqrt(dh)), (frame, head, query) rows
+  Mat o;      // attention output, head-major
+  Mat z1;     // post_conv1 output
+  Mat a1;     // ReLU(BN(z1))
+};
+
+namespace {
+
+/// Per-thread scratch of the attention kernels.
+struct HeadScratch {
+  internal::AlignedFloats t0;
+  internal::AlignedFloats t1;
+  internal::AlignedFloats t2;
+};
+
+}  // namespace
+
+SelfAttentionOp::SelfAttentionOp(SelfAttentionImpl& backbone)
+    : d_(backbone.options().d_model), heads_(backbone.options().num_heads) {
+  const std::vector<int64_t> order = HeadMajorOrder(d_, heads_);
+  for (const MultiHeadAttention& layer : backbone.layers()) {
+    layers_.push_back(std::make_unique<Layer>(*layer.ptr(), order));
+  }
+}
+
+SelfAttentionOp::~SelfAttentionOp() = default;
+
+void SelfAttentionOp::Pack() {
+  for (auto& layer : layers_) layer->Pack();
+}
+
+void SelfAttentionOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
+  const int64_t rows = x.rows;
+  const int64_t d = d_;
+  const int64_t h = heads_;
+  const int64_t dh = d / h;
+  const int64_t n = ctx.points;
+  const int64_t np = RoundUp16(n);
+  const float scale = static_cast<float>(1.0 / std::sqrt(double(dh)));
+  y.Resize(rows, d);
+  if (layers_.empty()) {
+    CopyColumns(x.data(), x.ld, rows, d, y.data(), y.ld);
+    return;
+  }
+  for (auto& layer : layers_) layer->xcat.Resize(rows, 2 * d);
+  CopyColumns(x.data(),
+              x.ld,
+              rows,
+              d,
+              layers_[0]->xcat.data() + d,
+              layers_[0]->xcat.ld);
+  for (size_t i = 0; i < layers_.size(); ++i) {
+    Layer& L = *layers_[i];
+    const float* in = L.xcat.data() + d;
+    const int64_t ld_in = L.xcat.ld;
+    L.q.Resize(rows, 3 * d);
+    L.probs.Resize(ctx.batch * h * n, n);
+    L.o.Resize(rows, d);
+    L.z1.Resize(rows, 2 * d);
+    L.a1.Resize(rows, 2 * d);
+    L.qkv.Forward(ctx, in, ld_in, rows, L.q.data(), L.q.ld);
+    at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
+      HeadScratch scratch;
+      scratch.t0.Resize(static_cast<size_t>(dh * np + 16));
+      for (int64_t f = begin; f < end; ++f) {
+        for (int64_t head = 0; head < h; ++head) {
+          const float* q = L.q.row(f * n) + head * dh;
+          const float* k = q + d;
+          const float* v = q + 2 * d;
+          float* kt = scratch.t0.data();
+          Transpose(k, L.q.ld, n, dh, kt, np);
+          float* p = L.probs.row((f * h + head) * n);
+          GemmPacked(ctx.isa,
+                     q,
+                     L.q.ld,
+                     n,
+                     WeightView{kt, 16, np, nullptr, n, dh},
+                     p,
+                     L.probs.ld,
+                     {},
+                     0,
+                     NumPanels(n));
+          for (int64_t r = 0; r < n; ++r) {
+            float* pr = p + r * L.probs.ld;
+            for (int64_t j = 0; j < n; ++j) pr[j] *= scale;
+          }
+          internal::SoftmaxRows(ctx.isa, p, L.probs.ld, n, n);
+          GemmPacked(ctx.isa,
+                     p,
+                     L.probs.ld,
+                     n,
+                     WeightView{v, 16, L.q.ld, nullptr, dh, n},
+                     L.o.row(f * n) + head * dh,
+                     L.o.ld,
+                     {},
+                     0,
+                     NumPanels(dh));
+        }
+      }
+    });
+    L.merge.Forward(ctx, L.o.data(), L.o.ld, rows, L.xcat.data(), L.xcat.ld);
+    L.post1.Forward(ctx, L.xcat.data(), L.xcat.ld, rows, L.z1.data(), L.z1.ld);
+    L.bn.Forward(ctx,
+                 L.z1.data(),
+                 L.z1.ld,
+                 rows,
+                 nullptr,
+                 0,
+                 /*relu=*/true,
+                 1.0f,
+                 L.a1.data(),
+                 L.a1.ld);
+    float* out =
+        i + 1 < layers_.size() ? layers_[i + 1]->xcat.data() + d : y.data();
+    const int64_t ld_out =
+        i + 1 < layers_.size() ? layers_[i + 1]->xcat.ld : y.ld;
+    GemmEpilogue residual;
+    residual.residual = in;
+    residual.ld_residual = ld_in;
+    L.post2.Forward(ctx, L.a1.data(), L.a1.ld, rows, out, ld_out, residual);
+  }
+}
+
+void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
+  const int64_t rows = dy.rows;
+  const int64_t d = d_;
+  const int64_t h = heads_;
+  const int64_t dh = d / h;
+  const int64_t n = ctx.points;
+  const int64_t np = RoundUp16(n);
+  const float scale = static_cast<float>(1.0 / std::sqrt(double(dh)));
+  dx.Resize(rows, d);
+  if (layers_.empty()) {
+    CopyColumns(dy.data(), dy.ld, rows, d, dx.data(), dx.ld);
+    return;
+  }
+  dz_.Resize(rows, 2 * d);
+  dxcat_.Resize(rows, 2 * d);
+  dqkv_.Resize(rows, 3 * d);
+  do_.Resize(rows, d);
+  Mat* grad_out = &dy;  // gradient w.r.t. the current layer's output
+  Mat* grad_in = &dx;
+  for (size_t idx = layers_.size(); idx-- > 0;) {
+    Layer& L = *layers_[idx];
+    const float* in = L.xcat.data() + d;
+    const int64_t ld_in = L.xcat.ld;
+    // post2 (residual handled at the end), BN + ReLU, post1.
+    L.post2.Backward(ctx,
+                     L.a1.data(),
+                     L.a1.ld,
+                     grad_out->data(),
+                     grad_out->ld,
+                     rows,
+                     dz_.data(),
+                     dz_.ld,
+                     false);
+    L.bn.Backward(ctx,
+                  L.z1.data(),
+                  L.z1.ld,
+                  L.a1.data(),
+                  L.a1.ld,
+                  dz_.data(),
+                  dz_.ld,
+                  rows,
+                  dz_.data(),
+                  dz_.ld,
+                  nullptr,
+                  0);
+    L.post1.Backward(ctx,
+                     L.xcat.data(),
+                     L.xcat.ld,
+                     dz_.data(),
+                     dz_.ld,
+                     rows,
+                     dxcat_.data(),
+                     dxcat_.ld,
+                     false);
+    // merge: d(merged) = dxcat[:, :D] -> d(o).
+    L.merge.Backward(ctx,
+                     L.o.data(),
+                     L.o.ld,
+                     dxcat_.data(),
+                     dxcat_.ld,
+                     rows,
+                     do_.data(),
+                     do_.ld,
+                     false);
+    // Attention heads, per frame.
+    at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
+      HeadScratch scratch;
+      scratch.t0.Resize(static_cast<size_t>(np * np + 16));  // dP / dS
+      scratch.t1.Resize(static_cast<size_t>(np * np + 16));  // P^T, dS^T
+      scratch.t2.Resize(static_cast<size_t>(dh * np + 16));  // v^T
+      for (int64_t f = begin; f < end; ++f) {
+        for (int64_t head = 0; head < h; ++head) {
+          const float* q = L.q.row(f * n) + head * dh;
+          const float* k = q + d;
+          const float* v = q + 2 * d;
+          const int64_t ldq = L.q.ld;
+          const float* p = L.probs.row((f * h + head) * n);
+          const int64_t ldp = L.probs.ld;
+          const float* dout = do_.row(f * n) + head * dh;
+          float* dq = dqkv_.row(f * n) + head * dh;
+          float* dk = dq + d;
+          float* dv = dq + 2 * d;
+          float* ds = scratch.t0.data();
+          float* tr = scratch.t1.data();
+          float* vt = scratch.t2.data();
+          // dP = dO v^T.
+          Transpose(v, ldq, n, dh, vt, np);
+          GemmPacked(ctx.isa,
+                     dout,
+                     do_.ld,
+                     n,
+                     WeightView{vt, 16, np, nullptr, n, dh},
+                     ds,
+                     np,
+                     {},
+                     0,
+                     NumPanels(n));
+          // dS = P * (dP - rowsum(dP * P)) / sqrt(dh).
+          for (int64_t r = 0; r < n; ++r) {
+            const float* pr = p + r * ldp;
+            float* sr = ds + r * np;
+            float dot = 0.0f;
+            for (int64_t j = 0; j < n; ++j) dot += sr[j] * pr[j];
+            for (int64_t j = 0; j < n; ++j)
+              sr[j] = pr[j] * (sr[j] - dot) * scale;
+          }
+          // dV = P^T dO.
+          Transpose(p, ldp, n, n, tr, np);
+          GemmPacked(ctx.isa,
+                     tr,
+                     np,
+                     n,
+                     WeightView{dout, 16, do_.ld, nullptr, dh, n},
+                     dv,
+                     dqkv_.ld,
+                     {},
+                     0,
+                     NumPanels(dh));
+          // dQ = dS k; dK = dS^T q.
+          GemmPacked(ctx.isa,
+                     ds,
+                     np,
+                     n,
+                     WeightView{k, 16, ldq, nullptr, dh, n},
+                     dq,
+                     dqkv_.ld,
+                     {},
+                     0,
+                     NumPanels(dh));
+          Transpose(ds, np, n, n, tr, np);
+          GemmPacked(ctx.isa,
+                     tr,
+                     np,
+                     n,
+                     WeightView{q, 16, ldq, nullptr, dh, n},
+                     dk,
+                     dqkv_.ld,
+                     {},
+                     0,
+                     NumPanels(dh));
+        }
+      }
+    });
+    L.qkv.Backward(ctx,
+                   in,
+                   ld_in,
+                   dqkv_.data(),
+                   dqkv_.ld,
+                   rows,
+                   grad_in->data(),
+                   grad_in->ld,
+                   false);
+    // + the residual and the [merged | x] concatenation paths.
+    AddInPlace(
+        grad_out->data(), grad_out->ld, rows, d, grad_in->data(), grad_in->ld);
+    AddInPlace(
+        dxcat_.data() + d, dxcat_.ld, rows, d, grad_in->data(), grad_in->ld);
+    if (idx > 0) {
+      // The next (lower) layer's output gradient is this layer's input one.
+      if (grad_out == &dy) {
+        grad_out = &dx;
+        grad_in = &dy;
+      } else {
+        grad_out = &dy;
+        grad_in = &dx;
+      }
+      grad_in->Resize(rows, d);
+    }
+  }
+  if (grad_in != &dx) std::swap(dx, dy);
+}
+
+// ---------------------------------------------------------------------------
+// Conv1dBackboneOp
+
+struct Conv1dBackboneOp::Block {
+  explicit Block(const Conv1dBackboneImpl::Block& block)
+      : expand(*block.expand.ptr(), /*relu_out=*/true, 1.0f),
+        reduce(block.reduce.ptr().get()),
+        bn(block.bn.ptr().get()),
+        out(block.out.ptr().get()) {}
+  ResBlockOp expand;
+  LinearOp reduce;
+  BatchNormOp bn;
+  LinearOp out;
+  Mat t;  // expand output
+  Mat z;  // reduce output
+  Mat a;  // ReLU(BN(z))
+  Mat y;  // block output
+};
+
+Conv1dBackboneOp::Conv1dBackboneOp(Conv1dBackboneImpl& backbone) {
+  for (const Conv1dBackboneImpl::Block& block : backbone.blocks()) {
+    blocks_.push_back(std::make_unique<Block>(block));
+  }
+}
+
+Conv1dBackboneOp::~Conv1dBackboneOp() = default;
+
+void Conv1dBackboneOp::Pack() {
+  for (auto& block : blocks_) {
+    block->expand.Pack();
+    block->reduce.Pack();
+    block->out.Pack();
+  }
+}
+
+void Conv1dBackboneOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
+  const int64_t rows = x.rows;
+  const Mat* in = &x;
+  for (auto& block : blocks_) {
+    Block& b = *block;
+    b.expand.Forward(ctx, *in, b.t);
+    b.z.Resize(rows, b.reduce.out_channels());
+    b.a.Resize(rows, b.reduce.out_channels());
+    b.y.Resize(rows, x.cols);
+    b.reduce.Forward(ctx, b.t.data(), b.t.ld, rows, b.z.data(), b.z.ld);
+    b.bn.Forward(ctx,
+                 b.z.data(),
+                 b.z.ld,
+                 rows,
+                 nullptr,
+                 0,
+                 true,
+                 1.0f,
+                 b.a.data(),
+                 b.a.ld);
+    GemmEpilogue residual;
+    residual.residual = in->data();
+    residual.ld_residual = in->ld;
+    b.out.Forward(ctx, b.a.data(), b.a.ld, rows, b.y.data(), b.y.ld, residual);
+    in = &b.y;
+  }
+  y.Resize(rows, x.cols);
+  CopyColumns(in->data(), in->ld, rows, x.cols, y.data(), y.ld);
+  inputs_.clear();
+  inputs_.push_back(&x);
+  for (size_t i = 0; i + 1 < blocks_.size(); ++i) {
+    inputs_.push_back(&blocks_[i]->y);
+  }
+}
+
+void Conv1dBackboneOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
+  const int64_t rows = dy.rows;
+  const int64_t d = dy.cols;
+  dx.Resize(rows, d);
+  if (blocks_.empty()) {
+    CopyColumns(dy.data(), dy.ld, rows, d, dx.data(), dx.ld);
+    return;
+  }
+  Mat* grad_out = &dy;
+  Mat* grad_in = &dx;
+  for (size_t idx = blocks_.size(); idx-- > 0;) {
+    Block& b = *blocks_[idx];
+    const Mat& in = *inputs_[idx];
+    du_.Resize(rows, b.reduce.out_channels());
+    dt_.Resize(rows, b.reduce.in_channels());
+    b.out.Backward(ctx,
+                   b.a.data(),
+                   b.a.ld,
+                   grad_out->data(),
+                   grad_out->ld,
+                   rows,
+                   du_.data(),
+                   du_.ld,
+                   false);
+    b.bn.Backward(ctx,
+                  b.z.data(),
+                  b.z.ld,
+                  b.a.data(),
+                  b.a.ld,
+                  du_.data(),
+                  du_.ld,
+                  rows,
+                  du_.data(),
+                  du_.ld,
+                  nullptr,
+                  0);
+    b.reduce.Backward(ctx,
+                      b.t.data(),
+                      b.t.ld,
+                      du_.data(),
+                      du_.ld,
+                      rows,
+                      dt_.data(),
+                      dt_.ld,
+                      false);
+    b.expand.Backward(ctx, in, b.t, dt_, grad_in, false);
+    AddInPlace(
+        grad_out->data(), grad_out->ld, rows, d, grad_in->data(), grad_in->ld);
+    if (idx > 0) {
+      if (grad_out == &dy) {
+        grad_out = &dx;
+        grad_in = &dy;
+      } else {
+        grad_out = &dy;
+        grad_in = &dx;
+      }
+    }
+  }
+  if (grad_in != &dx) std::swap(dx, dy);
+}
+
+// ---------------------------------------------------------------------------
+// Normalization + loss
+
+namespace {
+
+class SinkhornLossOp : public NormalizationLossOp {
+ public:
+  SinkhornLossOp(at::Tensor bin_score, int num_iters)
+      : bin_score_(std::move(bin_score)), num_iters_(num_iters) {}
+
+  double ForwardBackward(const Context& ctx,
+                         const Mat& scores,
+                         const int64_t* label_ids,
+                         int64_t num_labels,
+                         Mat& d_scores) override {
+    const int64_t n = ctx.points;
+    const int64_t l = num_labels;
+    const double alpha = bin_score_.item<double>();
+    d_scores.Resize(scores.rows, l);
+    const int64_t threads = at::get_num_threads();
+    std::vector<double> loss(static_cast<size_t>(ctx.batch), 0.0);
+    std::vector<double> dalpha(static_cast<size_t>(ctx.batch), 0.0);
+    (void)threads;
+    at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
+      internal::FrameLossScratch scratch;
+      std::vector<float> g(static_cast<size_t>((n + 1) * (l + 1)));
+      std::vector<float> w(g.size());
+      for (int64_t f = begin; f < end; ++f) {
+        internal::BuildFrameTargets(
+            label_ids + f * n, n, l, true, g.data(), w.data());
+        double da = 0.0;
+        loss[static_cast<size_t>(f)] =
+            internal::SinkhornLossFrame(scores.row(f * n),
+                                        scores.ld,
+                                        n,
+                                        l,
+                                        alpha,
+                                        num_iters_,
+                                        g.data(),
+                                        w.data(),
+                                        nullptr,
+                                        d_scores.row(f * n),
+                                        d_scores.ld,
+                                        1.0,
+                                        &da,
+                                        scratch);
+        dalpha[static_cast<size_t>(f)] = da;
+      }
+    });
+    double total = 0.0, total_dalpha = 0.0;
+    for (size_t f = 0; f < loss.size(); ++f) {
+      total += loss[f];
+      total_dalpha += dalpha[f];
+    }
+    *Grad(bin_score_) = static_cast<float>(total_dalpha);
+    return total;
+  }
+
+ private:
+  at::Tensor bin_score_;
+  int num_iters_;
+};
+
+class LogSoftmaxLossOp : public NormalizationLossOp {
+ public:
+  explicit LogSoftmaxLossOp(const LabelingLossOptions& options)
+      : options_(options) {}
+
+  double ForwardBackward(const Context& ctx,
+                         const Mat& scores,
+                         const int64_t* label_ids,
+                         int64_t num_labels,
+                         Mat& d_scores) override {
+    const int64_t n = ctx.points;
+    const int64_t l = num_labels;
+    d_scores.Resize(scores.rows, l + 1);
+    std::vector<double> loss(static_cast<size_t>(ctx.batch), 0.0);
+    at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
+      internal::FrameLossScratch scratch;
+      std::vector<float> g(static_cast<size_t>((n + 1) * (l + 1)));
+      std::vector<float> w(g.size());
+      for (int64_t f = begin; f < end; ++f) {
+        internal::BuildFrameTargets(
+            label_ids + f * n, n, l, false, g.data(), w.data());
+        loss[static_cast<size_t>(f)] =
+            internal::LogSoftmaxLossFrame(scores.row(f * n),
+                                          scores.ld,
+                                          n,
+                                          l,
+                                          options_.quirk_probability_loss,
+                                          g.data(),
+                                          w.data(),
+                                          nullptr,
+                                          d_scores.row(f * n),
+                                          d_scores.ld,
+                                          1.0,
+                                          scratch);
+      }
+    });
+    double total = 0.0;
+    for (double value : loss) total += value;
+    return total;
+  }
+
+ private:
+  LabelingLossOptions options_;
+};
+
+}  // namespace
+
+std::unique_ptr<NormalizationLossOp> MakeSinkhornLossOp(at::Tensor bin_score,
+                                                        int num_iters) {
+  return std::make_unique<SinkhornLossOp>(std::move(bin_score), num_iters);
+}
+
+std::unique_ptr<NormalizationLossOp> MakeLogSoftmaxLossOp(
+    const LabelingLossOptions& loss) {
+  return std::make_unique<LogSoftmaxLossOp>(loss);
+}
+
+}  // namespace fast
+
+// ---------------------------------------------------------------------------
+// FastTrainer
+
+std::unique_ptr<FastTrainer> FastTrainer::Create(
+    LabelerImpl& model,
+    const LabelingLoss& loss,
+    const FastTrainerOptions& options,
+    std::string* why_not) {
+  std::string reason;
+  std::unique_ptr<fast::BackboneOp> backbone;
+  std::unique_ptr<fast::NormalizationLossOp> norm;
+  try {
+    backbone = model.backbone->MakeFastTrainOp(&reason);
+    if (backbone != nullptr) {
+      norm = model.normalization->MakeFastLossOp(loss, &reason);
+    }
+    if (backbone == nullptr || norm == nullptr) {
+      if (why_not != nullptr) *why_not = reason;
+      return nullptr;
+    }
+    return std::unique_ptr<FastTrainer>(
+        new FastTrainer(model, std::move(backbone), std::move(norm), options));
+  } catch (const InternalError& e) {
+    if (why_not != nullptr) *why_not = e.what();
+    return nullptr;
+  }
+}
+
+FastTrainer::FastTrainer(LabelerImpl& model,
+                         std::unique_ptr<fast::BackboneOp> backbone,
+                         std::unique_ptr<fast::NormalizationLossOp> loss,
+                         const FastTrainerOptions& options)
+    : model_(model), backbone_(std::move(backbone)), loss_(std::move(loss)) {
+  ctx_.isa = internal::ResolveIsa(options.isa);
+  encoder_ = std::make_unique<fast::ResBlockOp>(*model.encoder->block,
+                                                /*relu_out=*/true,
+                                                1.0f);
+  const float head_scale = static_cast<float>(
+      1.0 / std::sqrt(static_cast<double>(model.options().d_model)));
+  head_ = std::make_unique<fast::ResBlockOp>(*model.head->block,
+                                             /*relu_out=*/true,
+                                             head_scale);
+  classifier_ = std::make_unique<fast::LinearOp>(model.head->classifier.get());
+}
+
+FastTrainer::~FastTrainer() = default;
+
+double FastTrainer::Step(const at::Tensor& points,
+                         const at::Tensor& label_ids) {
+  SOMA_CHECK(points.dim() == 3 && points.size(2) == 3)
+      << "FastTrainer: points must be B x N x 3";
+  SOMA_CHECK(label_ids.dim() == 2 && label_ids.size(0) == points.size(0) &&
+             label_ids.size(1) == points.size(1))
+      << "FastTrainer: label ids must be B x N";
+  const at::Tensor p = points.to(torch::kFloat).contiguous();
+  const at::Tensor ids = label_ids.to(torch::kLong).contiguous();
+  ctx_.batch = p.size(0);
+  ctx_.points = p.size(1);
+  const int64_t n = ctx_.points;
+  const int64_t rows = ctx_.rows();
+  const int64_t num_labels = model_.num_labels();
+  torch::NoGradGuard no_grad;
+
+  // Median centring (no gradient: the points are data).
+  points_.Resize(rows, 3);
+  const float* src = p.data_ptr<float>();
+  at::parallel_for(0, ctx_.batch, 16, [&](int64_t begin, int64_t end) {
+    for (int64_t f = begin; f < end; ++f) {
+      float offset[3];
+      internal::MedianOffset(src + f * n * 3, n, offset);
+      for (int64_t i = 0; i < n; ++i) {
+        float* dst = points_.row(f * n + i);
+        for (int c = 0; c < 3; ++c)
+          dst[c] = src[(f * n + i) * 3 + c] - offset[c];
+      }
+    }
+  });
+
+  encoder_->Pack();
+  backbone_->Pack();
+  head_->Pack();
+  classifier_->Pack();
+
+  // Forward.
+  encoder_->Forward(ctx_, points_, features_);
+  backbone_->Forward(ctx_, features_, backbone_out_);
+  fast::Relu(backbone_out_, head_in_);
+  head_->Forward(ctx_, head_in_, head_out_);
+  scores_.Resize(rows, classifier_->out_channels());
+  classifier_->Forward(
+      ctx_, head_out_.data(), head_out_.ld, rows, scores_.data(), scores_.ld);
+  const double loss = loss_->ForwardBackward(
+      ctx_, scores_, ids.data_ptr<int64_t>(), num_labels, d_scores_);
+
+  // Backward.
+  d_head_out_.Resize(rows, head_out_.cols);
+  classifier_->Backward(ctx_,
+                        head_out_.data(),
+                        head_out_.ld,
+                        d_scores_.data(),
+                        d_scores_.ld,
+                        rows,
+                        d_head_out_.data(),
+                        d_head_out_.ld,
+                        false);
+  head_->Backward(ctx_, head_in_, head_out_, d_head_out_, &d_head_in_, false);
+  fast::ReluBackwardInPlace(backbone_out_, d_head_in_);
+  backbone_->Backward(ctx_, d_head_in_, d_features_);
+  encoder_->Backward(ctx_, points_, features_, d_features_, nullptr, false);
+  return loss;
+}
+
+// ---------------------------------------------------------------------------
+// Fused Adam
+
+bool FusedAdamStep(torch::optim::Optimizer& optimizer) {
+  auto* adam = dynamic_cast<torch::optim::Adam*>(&optimizer);
+  if (adam == nullptr) return false;
+  for (const auto& group : adam->param_groups()) {
+    const auto& options =
+        static_cast<const torch::optim::AdamOptions&>(group.options());
+    if (options.amsgrad()) return false;
+  }
+  torch::NoGradGuard no_grad;
+  for (auto& group : adam->param_groups()) {
+    const auto& options =
+        static_cast<const torch::optim::AdamOptions&>(group.options());
+    const double lr = options.lr();
+    const double beta1 = std::get<0>(options.betas());
+    const double beta2 = std::get<1>(options.betas());
+    const float eps = static_cast<float>(options.eps());
+    const float wd = static_cast<float>(options.weight_decay());
+    for (at::Tensor& p : group.params()) {
+      if (!p.grad().defined()) continue;
+      const std::string key = c10::guts::to_string(p.unsafeGetTensorImpl());
+      auto& states = adam->state();
+      auto it = states.find(key);
+      if (it == states.end()) {
+        auto state = std::make_unique<torch::optim::AdamParamState>();
+        state->step(0);
+        state->exp_avg(torch::zeros_like(p, at::MemoryFormat::Preserve));
+        state->exp_avg_sq(torch::zeros_like(p, at::MemoryFormat::Preserve));
+        it = states.emplace(key, std::move(state)).first;
+      }
+      auto& state = static_cast<torch::optim::AdamParamState&>(*it->second);
+      state.step(state.step() + 1);
+      const double bc1 = 1.0 - std::pow(beta1, double(state.step()));
+      const double bc2 = 1.0 - std::pow(beta2, double(state.step()));
+      const float step_size = static_cast<float>(lr / bc1);
+      const float inv_bc2_sqrt = static_cast<float>(1.0 / std::sqrt(bc2));
+      const float b1 = static_cast<float>(beta1);
+      const float b2 = static_cast<float>(beta2);
+      SOMA_CHECK(p.is_contiguous() && p.grad().is_contiguous() &&
+                 state.exp_avg().is_contiguous() &&
+                 state.exp_avg_sq().is_contiguous() &&
+                 p.scalar_type() == torch::kFloat)
+          << "FusedAdamStep needs contiguous float tensors";
+      float* w = p.data_ptr<float>();
+      const float* g = p.grad().data_ptr<float>();
+      float* m = state.exp_avg().data_ptr<float>();
+      float* v = state.exp_avg_sq().data_ptr<float>();
+      const int64_t count = p.numel();
+      at::parallel_for(0, count, 4096, [&](int64_t begin, int64_t end) {
+        for (int64_t i = begin; i < end; ++i) {
+          const float grad = g[i] + wd * w[i];
+          m[i] = m[i] * b1 + (1.0f - b1) * grad;
+          v[i] = v[i] * b2 + (1.0f - b2) * grad * grad;
+          const float denom = std::sqrt(v[i]) * inv_bc2_sqrt + eps;
+          w[i] -= step_size * m[i] / denom;
+        }
+      });
+    }
+  }
+  return true;
+}
+
+}  // namespace soma
