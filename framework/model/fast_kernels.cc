@@ -34,6 +34,7 @@ bool CpuHasAvx512() {
 
 void GemmPortable(const float* x,
                   int64_t ldx,
+                  int64_t xks,
                   int64_t rows,
                   const WeightView& w,
                   float* y,
@@ -51,7 +52,7 @@ void GemmPortable(const float* x,
         acc[j] = w.bias != nullptr ? w.bias[16 * p + j] : 0.0f;
       }
       for (int64_t kk = 0; kk < w.cols; ++kk) {
-        const float xv = xr[kk];
+        const float xv = xr[kk * xks];
         const float* wk = wp + kk * w.k_stride;
         for (int j = 0; j < width; ++j) acc[j] += xv * wk[j];
       }
@@ -107,6 +108,7 @@ inline __mmask16 LaneMask(int64_t valid) {
 template <int R, int P>
 void MicroKernel(const float* x,
                  int64_t ldx,
+                 int64_t xks,
                  const WeightView& w,
                  const float* wp,
                  const float* bias,
@@ -133,7 +135,7 @@ void MicroKernel(const float* x,
     }
 #pragma GCC unroll 8
     for (int r = 0; r < R; ++r) {
-      const __m512 xb = _mm512_set1_ps(x[r * ldx + kk]);
+      const __m512 xb = _mm512_set1_ps(x[r * ldx + kk * xks]);
 #pragma GCC unroll 4
       for (int p = 0; p < P; ++p) {
         acc[r][p] = _mm512_fmadd_ps(xb, wv[p], acc[r][p]);
@@ -170,6 +172,7 @@ void MicroKernel(const float* x,
 }
 
 using MicroKernelFn = void (*)(const float*,
+                               int64_t,
                                int64_t,
                                const WeightView&,
                                const float*,
@@ -217,6 +220,7 @@ GemmEpilogue TileEpilogue(const GemmEpilogue& ep, int64_t r0) {
 
 void GemmAvx512(const float* x,
                 int64_t ldx,
+                int64_t xks,
                 int64_t rows,
                 const WeightView& w,
                 float* y,
@@ -236,6 +240,7 @@ void GemmAvx512(const float* x,
     for (; r0 + kRowTile <= rows; r0 += kRowTile) {
       full(x + r0 * ldx,
            ldx,
+           xks,
            w,
            wp,
            b,
@@ -247,6 +252,7 @@ void GemmAvx512(const float* x,
     if (r0 < rows) {
       SelectKernel(static_cast<int>(rows - r0), np)(x + r0 * ldx,
                                                     ldx,
+                                                    xks,
                                                     w,
                                                     wp,
                                                     b,
@@ -512,11 +518,28 @@ void GemmPacked(KernelIsa isa,
                 const GemmEpilogue& epilogue,
                 int64_t panel_begin,
                 int64_t panel_end) {
+  GemmPackedStrided(
+      isa, x, ldx, 1, rows, w, y, ldy, epilogue, panel_begin, panel_end);
+}
+
+void GemmPackedStrided(KernelIsa isa,
+                       const float* x,
+                       int64_t ldx,
+                       int64_t x_k_stride,
+                       int64_t rows,
+                       const WeightView& w,
+                       float* y,
+                       int64_t ldy,
+                       const GemmEpilogue& epilogue,
+                       int64_t panel_begin,
+                       int64_t panel_end) {
   if (rows <= 0 || panel_begin >= panel_end) return;
   if (isa == KernelIsa::kAvx512) {
-    GemmAvx512(x, ldx, rows, w, y, ldy, epilogue, panel_begin, panel_end);
+    GemmAvx512(
+        x, ldx, x_k_stride, rows, w, y, ldy, epilogue, panel_begin, panel_end);
   } else {
-    GemmPortable(x, ldx, rows, w, y, ldy, epilogue, panel_begin, panel_end);
+    GemmPortable(
+        x, ldx, x_k_stride, rows, w, y, ldy, epilogue, panel_begin, panel_end);
   }
 }
 

@@ -111,6 +111,21 @@ void GemmPacked(KernelIsa isa,
                 int64_t panel_begin,
                 int64_t panel_end);
 
+/// GemmPacked with `X[r][k]` read at `x[r * ldx + k * x_k_stride]`: with
+/// `ldx = 1, x_k_stride = ld` it multiplies by a transposed matrix in place
+/// (the training engine's `dW = dY^T X` and the attention's `P^T dO`).
+void GemmPackedStrided(KernelIsa isa,
+                       const float* x,
+                       int64_t ldx,
+                       int64_t x_k_stride,
+                       int64_t rows,
+                       const WeightView& w,
+                       float* y,
+                       int64_t ldy,
+                       const GemmEpilogue& epilogue,
+                       int64_t panel_begin,
+                       int64_t panel_end);
+
 /// GemmPacked over all panels of `w`.
 void Gemm(KernelIsa isa,
           const float* x,

@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <utility>
 
 namespace soma {
@@ -169,6 +170,164 @@ void CopyColumns(const float* x,
   });
 }
 
+// The elementwise passes below are compiled twice (AVX-512 and the baseline
+// ISA) and dispatched at load time; they accumulate in float over blocks of
+// kSumBlock rows and in double across blocks.
+#define SOMA_VECTOR_CLONES __attribute__((target_clones("avx512f", "default")))
+constexpr int64_t kSumBlock = 32;
+
+/// `sums[c] += sum_r x[r][c]`; `tmp` holds `cols` floats.
+SOMA_VECTOR_CLONES void ColumnSums(const float* __restrict x,
+                                   int64_t ldx,
+                                   int64_t rows,
+                                   int64_t cols,
+                                   double* __restrict sums,
+                                   float* __restrict tmp) {
+  for (int64_t r0 = 0; r0 < rows; r0 += kSumBlock) {
+    const int64_t r1 = std::min(rows, r0 + kSumBlock);
+    for (int64_t c = 0; c < cols; ++c) tmp[c] = 0.0f;
+    for (int64_t r = r0; r < r1; ++r) {
+      const float* v = x + r * ldx;
+      for (int64_t c = 0; c < cols; ++c) tmp[c] += v[c];
+    }
+    for (int64_t c = 0; c < cols; ++c) sums[c] += tmp[c];
+  }
+}
+
+/// `s1[c] += sum_r (y - shift)`, `s2[c] += sum_r (y - shift)^2`; `tmp` holds
+/// `2 * cols` floats.
+SOMA_VECTOR_CLONES void ShiftedMoments(const float* __restrict y,
+                                       int64_t ldy,
+                                       int64_t rows,
+                                       int64_t cols,
+                                       const float* __restrict shift,
+                                       double* __restrict s1,
+                                       double* __restrict s2,
+                                       float* __restrict tmp) {
+  float* t1 = tmp;
+  float* t2 = tmp + cols;
+  for (int64_t r0 = 0; r0 < rows; r0 += kSumBlock) {
+    const int64_t r1 = std::min(rows, r0 + kSumBlock);
+    for (int64_t c = 0; c < cols; ++c) t1[c] = t2[c] = 0.0f;
+    for (int64_t r = r0; r < r1; ++r) {
+      const float* v = y + r * ldy;
+      for (int64_t c = 0; c < cols; ++c) {
+        const float d = v[c] - shift[c];
+        t1[c] += d;
+        t2[c] += d * d;
+      }
+    }
+    for (int64_t c = 0; c < cols; ++c) {
+      s1[c] += t1[c];
+      s2[c] += t2[c];
+    }
+  }
+}
+
+/// `out = act(scale * (a * (y - m) + b + add))` with per-column `a`, `m`,
+/// `b`.
+SOMA_VECTOR_CLONES void AffineRows(const float* __restrict y,
+                                   int64_t ldy,
+                                   int64_t rows,
+                                   int64_t cols,
+                                   const float* __restrict m,
+                                   const float* __restrict a,
+                                   const float* __restrict b,
+                                   const float* __restrict add,
+                                   int64_t ldadd,
+                                   float scale,
+                                   bool relu,
+                                   float* __restrict out,
+                                   int64_t ldout) {
+  const float lower = relu ? 0.0f : -std::numeric_limits<float>::infinity();
+  for (int64_t r = 0; r < rows; ++r) {
+    const float* v = y + r * ldy;
+    float* o = out + r * ldout;
+    if (add != nullptr) {
+      const float* e = add + r * ldadd;
+      for (int64_t c = 0; c < cols; ++c) {
+        o[c] = std::max(scale * (a[c] * (v[c] - m[c]) + b[c] + e[c]), lower);
+      }
+    } else {
+      for (int64_t c = 0; c < cols; ++c) {
+        o[c] = std::max(scale * (a[c] * (v[c] - m[c]) + b[c]), lower);
+      }
+    }
+  }
+}
+
+/// BatchNorm backward, pass 1: `g = dout * scale * relu'(out)` into `g` (and
+/// `gadd`), `s1 += sum g`, `s2 += sum g * xhat` with `xhat = (y - mean) *
+/// inv_std`; `tmp` holds `2 * cols` floats.
+SOMA_VECTOR_CLONES void BatchNormGradPass(const float* __restrict y,
+                                          int64_t ldy,
+                                          const float* __restrict out,
+                                          int64_t ldout,
+                                          const float* dout,
+                                          int64_t lddout,
+                                          int64_t rows,
+                                          int64_t cols,
+                                          const float* __restrict inv_std,
+                                          const float* __restrict mean,
+                                          float scale,
+                                          bool relu,
+                                          float* g,
+                                          int64_t ldg,
+                                          float* __restrict gadd,
+                                          int64_t ldgadd,
+                                          double* __restrict s1,
+                                          double* __restrict s2,
+                                          float* __restrict tmp) {
+  float* t1 = tmp;
+  float* t2 = tmp + cols;
+  for (int64_t r0 = 0; r0 < rows; r0 += kSumBlock) {
+    const int64_t r1 = std::min(rows, r0 + kSumBlock);
+    for (int64_t c = 0; c < cols; ++c) t1[c] = t2[c] = 0.0f;
+    for (int64_t r = r0; r < r1; ++r) {
+      const float* v = y + r * ldy;
+      const float* o = out + r * ldout;
+      const float* d = dout + r * lddout;
+      float* gr = g + r * ldg;
+      for (int64_t c = 0; c < cols; ++c) {
+        const float value = (relu && !(o[c] > 0.0f)) ? 0.0f : d[c] * scale;
+        gr[c] = value;
+        t1[c] += value;
+        t2[c] += value * ((v[c] - mean[c]) * inv_std[c]);
+      }
+      if (gadd != nullptr) {
+        float* ga = gadd + r * ldgadd;
+        for (int64_t c = 0; c < cols; ++c) ga[c] = gr[c];
+      }
+    }
+    for (int64_t c = 0; c < cols; ++c) {
+      s1[c] += t1[c];
+      s2[c] += t2[c];
+    }
+  }
+}
+
+/// BatchNorm backward, pass 2: `g = k0 * (g - k1 - xhat * k2)`.
+SOMA_VECTOR_CLONES void BatchNormGradApply(const float* __restrict y,
+                                           int64_t ldy,
+                                           int64_t rows,
+                                           int64_t cols,
+                                           const float* __restrict inv_std,
+                                           const float* __restrict mean,
+                                           const float* __restrict k0,
+                                           const float* __restrict k1,
+                                           const float* __restrict k2,
+                                           float* __restrict g,
+                                           int64_t ldg) {
+  for (int64_t r = 0; r < rows; ++r) {
+    const float* v = y + r * ldy;
+    float* gr = g + r * ldg;
+    for (int64_t c = 0; c < cols; ++c) {
+      const float xhat = (v[c] - mean[c]) * inv_std[c];
+      gr[c] = k0[c] * (gr[c] - k1[c] - xhat * k2[c]);
+    }
+  }
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -262,23 +421,17 @@ void LinearOp::Backward(const Context& ctx,
                         int64_t lddx,
                         bool accumulate) {
   const int64_t kp = RoundUp16(in_);
-  const int64_t ldt = RoundUp16(rows);
-  dyt_.Resize(static_cast<size_t>(out_ * ldt + 16));
   dw_.Resize(static_cast<size_t>(out_ * kp + 16));
-  // dy^T and the bias gradient (per-chunk partial column sums).
+  // The bias gradient (per-chunk partial column sums).
   std::vector<std::vector<double>> partial(
       static_cast<size_t>(at::get_num_threads() + 1));
   const int64_t chunks =
       ParallelChunks(rows, [&](int64_t chunk, int64_t begin, int64_t end) {
         std::vector<double>& sums = partial[static_cast<size_t>(chunk)];
         sums.assign(static_cast<size_t>(out_), 0.0);
-        for (int64_t r = begin; r < end; ++r) {
-          const float* d = dy + r * ldy;
-          for (int64_t m = 0; m < out_; ++m)
-            sums[static_cast<size_t>(m)] += d[m];
-        }
-        Transpose(
-            dy + begin * ldy, ldy, end - begin, out_, dyt_.data() + begin, ldt);
+        std::vector<float> tmp(static_cast<size_t>(out_));
+        ColumnSums(
+            dy + begin * ldy, ldy, end - begin, out_, sums.data(), tmp.data());
       });
   db_.assign(static_cast<size_t>(out_), 0.0);
   for (int64_t c = 0; c < chunks; ++c) {
@@ -287,8 +440,9 @@ void LinearOp::Backward(const Context& ctx,
           partial[static_cast<size_t>(c)][static_cast<size_t>(m)];
     }
   }
-  // dW = dy^T x, accumulated over chunks of rows; threads split the output
-  // rows (multiples of 8, the micro-kernel's row tile).
+  // dW = dy^T x (dy read transposed in place), accumulated over chunks of
+  // rows; threads split the output rows (multiples of 8, the micro-kernel's
+  // row tile).
   const int64_t row_tiles = (out_ + 7) / 8;
   at::parallel_for(0, row_tiles, 1, [&](int64_t begin, int64_t end) {
     const int64_t m0 = begin * 8;
@@ -301,16 +455,18 @@ void LinearOp::Backward(const Context& ctx,
         ep.residual = dw;
         ep.ld_residual = kp;
       }
-      GemmPacked(ctx.isa,
-                 dyt_.data() + m0 * ldt + c0,
-                 ldt,
-                 m1 - m0,
-                 WeightView{x + c0 * ldx, 16, ldx, nullptr, in_, cn},
-                 dw,
-                 kp,
-                 ep,
-                 0,
-                 NumPanels(in_));
+      internal::GemmPackedStrided(
+          ctx.isa,
+          dy + c0 * ldy + m0,
+          1,
+          ldy,
+          m1 - m0,
+          WeightView{x + c0 * ldx, 16, ldx, nullptr, in_, cn},
+          dw,
+          kp,
+          ep,
+          0,
+          NumPanels(in_));
     }
     if (rows == 0) {
       for (int64_t m = m0; m < m1; ++m) {
@@ -395,16 +551,15 @@ void BatchNormOp::Forward(const Context& /*ctx*/,
       ParallelChunks(rows, [&](int64_t chunk, int64_t begin, int64_t end) {
         std::vector<double>& sums = partial[static_cast<size_t>(chunk)];
         sums.assign(static_cast<size_t>(2 * c_count), 0.0);
-        double* s1 = sums.data();
-        double* s2 = sums.data() + c_count;
-        for (int64_t r = begin; r < end; ++r) {
-          const float* v = y + r * ldy;
-          for (int64_t c = 0; c < c_count; ++c) {
-            const double d = static_cast<double>(v[c]) - y[c];
-            s1[c] += d;
-            s2[c] += d * d;
-          }
-        }
+        std::vector<float> tmp(static_cast<size_t>(2 * c_count));
+        ShiftedMoments(y + begin * ldy,
+                       ldy,
+                       end - begin,
+                       c_count,
+                       y,
+                       sums.data(),
+                       sums.data() + c_count,
+                       tmp.data());
       });
   mean_.resize(static_cast<size_t>(c_count));
   inv_std_.resize(static_cast<size_t>(c_count));
@@ -436,22 +591,22 @@ void BatchNormOp::Forward(const Context& /*ctx*/,
   }
   if (bn_->num_batches_tracked.defined()) bn_->num_batches_tracked.add_(1);
   // Normalise, affine, addend, scale, ReLU.
+  std::vector<float> a(static_cast<size_t>(c_count));
+  for (size_t c = 0; c < a.size(); ++c) a[c] = gamma_[c] * inv_std_[c];
   ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
-    for (int64_t r = begin; r < end; ++r) {
-      const float* v = y + r * ldy;
-      const float* a = add != nullptr ? add + r * ldadd : nullptr;
-      float* o = out + r * ldout;
-      for (int64_t c = 0; c < c_count; ++c) {
-        float value = gamma_[static_cast<size_t>(c)] *
-                          ((v[c] - mean_[static_cast<size_t>(c)]) *
-                           inv_std_[static_cast<size_t>(c)]) +
-                      beta_[static_cast<size_t>(c)];
-        if (a != nullptr) value += a[c];
-        value *= scale;
-        if (relu) value = std::max(value, 0.0f);
-        o[c] = value;
-      }
-    }
+    AffineRows(y + begin * ldy,
+               ldy,
+               end - begin,
+               c_count,
+               mean_.data(),
+               a.data(),
+               beta_.data(),
+               add != nullptr ? add + begin * ldadd : nullptr,
+               ldadd,
+               scale,
+               relu,
+               out + begin * ldout,
+               ldout);
   });
 }
 
@@ -478,25 +633,26 @@ void BatchNormOp::Backward(const Context& /*ctx*/,
       ParallelChunks(rows, [&](int64_t chunk, int64_t begin, int64_t end) {
         std::vector<double>& sums = partial[static_cast<size_t>(chunk)];
         sums.assign(static_cast<size_t>(2 * c_count), 0.0);
-        double* s1 = sums.data();
-        double* s2 = sums.data() + c_count;
-        for (int64_t r = begin; r < end; ++r) {
-          const float* v = y + r * ldy;
-          const float* o = out + r * ldout;
-          const float* d = dout + r * lddout;
-          float* g = dy + r * lddy;
-          float* ga = dadd != nullptr ? dadd + r * lddadd : nullptr;
-          for (int64_t c = 0; c < c_count; ++c) {
-            float value = d[c] * scale;
-            if (relu && !(o[c] > 0.0f)) value = 0.0f;
-            g[c] = value;
-            if (ga != nullptr) ga[c] = value;
-            const float xhat = (v[c] - mean_[static_cast<size_t>(c)]) *
-                               inv_std_[static_cast<size_t>(c)];
-            s1[c] += value;
-            s2[c] += static_cast<double>(value) * xhat;
-          }
-        }
+        std::vector<float> tmp(static_cast<size_t>(2 * c_count));
+        BatchNormGradPass(y + begin * ldy,
+                          ldy,
+                          out + begin * ldout,
+                          ldout,
+                          dout + begin * lddout,
+                          lddout,
+                          end - begin,
+                          c_count,
+                          inv_std_.data(),
+                          mean_.data(),
+                          scale,
+                          relu,
+                          dy + begin * lddy,
+                          lddy,
+                          dadd != nullptr ? dadd + begin * lddadd : nullptr,
+                          lddadd,
+                          sums.data(),
+                          sums.data() + c_count,
+                          tmp.data());
       });
   std::vector<float> k1(static_cast<size_t>(c_count));
   std::vector<float> k2(static_cast<size_t>(c_count));
@@ -519,15 +675,17 @@ void BatchNormOp::Backward(const Context& /*ctx*/,
   }
   // Pass 2: dy = gamma / sigma * (g - mean(g) - xhat * mean(g * xhat)).
   ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
-    for (int64_t r = begin; r < end; ++r) {
-      const float* v = y + r * ldy;
-      float* g = dy + r * lddy;
-      for (int64_t c = 0; c < c_count; ++c) {
-        const size_t i = static_cast<size_t>(c);
-        const float xhat = (v[c] - mean_[i]) * inv_std_[i];
-        g[c] = k0[i] * (g[c] - k1[i] - xhat * k2[i]);
-      }
-    }
+    BatchNormGradApply(y + begin * ldy,
+                       ldy,
+                       end - begin,
+                       c_count,
+                       inv_std_.data(),
+                       mean_.data(),
+                       k0.data(),
+                       k1.data(),
+                       k2.data(),
+                       dy + begin * lddy,
+                       lddy);
   });
 }
 
@@ -908,7 +1066,6 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
     at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
       HeadScratch scratch;
       scratch.t0.Resize(static_cast<size_t>(np * np + 16));  // dP / dS
-      scratch.t1.Resize(static_cast<size_t>(np * np + 16));  // P^T, dS^T
       scratch.t2.Resize(static_cast<size_t>(dh * np + 16));  // v^T
       for (int64_t f = begin; f < end; ++f) {
         for (int64_t head = 0; head < h; ++head) {
@@ -923,7 +1080,6 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
           float* dk = dq + d;
           float* dv = dq + 2 * d;
           float* ds = scratch.t0.data();
-          float* tr = scratch.t1.data();
           float* vt = scratch.t2.data();
           // dP = dO v^T.
           Transpose(v, ldq, n, dh, vt, np);
@@ -946,18 +1102,19 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
             for (int64_t j = 0; j < n; ++j)
               sr[j] = pr[j] * (sr[j] - dot) * scale;
           }
-          // dV = P^T dO.
-          Transpose(p, ldp, n, n, tr, np);
-          GemmPacked(ctx.isa,
-                     tr,
-                     np,
-                     n,
-                     WeightView{dout, 16, do_.ld, nullptr, dh, n},
-                     dv,
-                     dqkv_.ld,
-                     {},
-                     0,
-                     NumPanels(dh));
+          // dV = P^T dO (P read transposed in place).
+          internal::GemmPackedStrided(
+              ctx.isa,
+              p,
+              1,
+              ldp,
+              n,
+              WeightView{dout, 16, do_.ld, nullptr, dh, n},
+              dv,
+              dqkv_.ld,
+              {},
+              0,
+              NumPanels(dh));
           // dQ = dS k; dK = dS^T q.
           GemmPacked(ctx.isa,
                      ds,
@@ -969,17 +1126,17 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
                      {},
                      0,
                      NumPanels(dh));
-          Transpose(ds, np, n, n, tr, np);
-          GemmPacked(ctx.isa,
-                     tr,
-                     np,
-                     n,
-                     WeightView{q, 16, ldq, nullptr, dh, n},
-                     dk,
-                     dqkv_.ld,
-                     {},
-                     0,
-                     NumPanels(dh));
+          internal::GemmPackedStrided(ctx.isa,
+                                      ds,
+                                      1,
+                                      np,
+                                      n,
+                                      WeightView{q, 16, ldq, nullptr, dh, n},
+                                      dk,
+                                      dqkv_.ld,
+                                      {},
+                                      0,
+                                      NumPanels(dh));
         }
       }
     });

@@ -131,7 +131,6 @@ class LinearOp {
   internal::AlignedFloats wt_;    // in x RoundUp16(out): forward view
   internal::AlignedFloats bias_;  // RoundUp16(out)
   internal::AlignedFloats w_;     // out x RoundUp16(in): backward view
-  internal::AlignedFloats dyt_;   // out x rows (dy transposed)
   internal::AlignedFloats dw_;    // out x RoundUp16(in)
   std::vector<double> db_;
 };

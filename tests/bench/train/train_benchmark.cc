@@ -1,16 +1,20 @@
-// Training throughput: one optimizer step (forward, labelling loss, backward,
-// Adam) on random frames, at the model sizes and batch sizes of
-// configs/scale/paper.yaml and configs/scale/cpu.yaml (L = 41 labels, N = 44
-// points, Sinkhorn with 35 iterations). items_per_second = training frames
-// per second.
+// Training throughput of both engines side by side: one optimizer step
+// (forward, labelling loss, backward, Adam) on random frames, at the model
+// sizes and batch sizes of configs/scale/paper.yaml and configs/scale/cpu.yaml
+// (L = 41 labels, N = 44 points, Sinkhorn with 35 iterations), exactly the
+// step `soma train` runs: `torch` is libtorch autograd + torch::optim::Adam,
+// `fast` is FastTrainer::Step + FusedAdamStep (train.engine=fast).
+// items_per_second = training frames per second; peak_rss_mib = the
+// process's peak resident memory after the run (the rows run in order, so it
+// is cumulative).
 //
 //   soma_bench_train_train_benchmark --benchmark_min_time=5
 //
-// Rows for 1 and 2 intra-op threads. On a loaded 2-core machine 1 thread is
-// far more robust: libgomp's spinning threads collapse under contention.
+// Rows for 1 and 2 intra-op threads.
 #include "framework/config/yaml_io.h"
 #include "framework/core/build_info.h"
 #include "framework/framework.h"
+#include "framework/model/fast_train.h"
 #include "framework/model/labeler.h"
 #include "framework/model/loss.h"
 #include "framework/model/torch_utils.h"
@@ -20,6 +24,7 @@
 #include <torch/torch.h>
 
 #include <string>
+#include <sys/resource.h>
 
 namespace soma {
 namespace {
@@ -58,7 +63,15 @@ Scale LoadScale(const std::string& name) {
   return scale;
 }
 
-void BM_TrainStep(benchmark::State& state, const std::string& name) {
+double PeakRssMib() {
+  struct rusage usage {};
+  getrusage(RUSAGE_SELF, &usage);
+  return static_cast<double>(usage.ru_maxrss) / 1024.0;
+}
+
+void BM_TrainStep(benchmark::State& state,
+                  const std::string& name,
+                  const std::string& engine) {
   InitFramework();  // registries (BuildLabeler); once per process
   SetTorchThreads(static_cast<int>(state.range(0)));
   const Scale scale = LoadScale(name);
@@ -83,31 +96,56 @@ void BM_TrainStep(benchmark::State& state, const std::string& name) {
     points[f].index_fill_(0, null_slots, 0.0);
   }
   const AugmentedTargets targets = BuildAugmentedTargets(labels, kNumLabels);
-  auto step = [&] {
+  std::unique_ptr<FastTrainer> fast;
+  if (engine == "fast") {
+    std::string why_not;
+    fast = FastTrainer::Create(*model, loss, {}, &why_not);
+    if (fast == nullptr) {
+      state.SkipWithError(why_not.c_str());
+      return;
+    }
+  }
+  auto step = [&]() -> double {
+    if (fast != nullptr) {
+      const double value = fast->Step(points, labels);
+      if (!FusedAdamStep(*optimizer)) optimizer->step();
+      return value;
+    }
     const LabelerOutput out = model->forward(points);
     const torch::Tensor value = loss.Compute(out.log_assignment, targets);
     optimizer->zero_grad();
     value.backward();
     optimizer->step();
-    return value;
+    return value.item<double>();
   };
   for (int warmup = 0; warmup < 2; ++warmup) step();  // first-call costs
   for (auto _ : state) {
-    benchmark::DoNotOptimize(step().item<float>());
+    benchmark::DoNotOptimize(step());
   }
   state.SetItemsProcessed(state.iterations() * b);
   state.counters["batch"] = static_cast<double>(b);
   state.counters["params"] =
       static_cast<double>(CountTrainableParameters(*model));
+  state.counters["peak_rss_mib"] = PeakRssMib();
 }
 
 // Argument: intra-op threads (1, or 2 = the reference machine's cores).
-BENCHMARK_CAPTURE(BM_TrainStep, cpu, std::string("cpu"))
+BENCHMARK_CAPTURE(BM_TrainStep, cpu_torch, "cpu", "torch")
     ->Arg(1)
     ->Arg(2)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
-BENCHMARK_CAPTURE(BM_TrainStep, paper, std::string("paper"))
+BENCHMARK_CAPTURE(BM_TrainStep, cpu_fast, "cpu", "fast")
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_TrainStep, paper_torch, "paper", "torch")
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_TrainStep, paper_fast, "paper", "fast")
     ->Arg(1)
     ->Arg(2)
     ->Unit(benchmark::kMillisecond)
