@@ -186,7 +186,8 @@ template <int R>
 constexpr MicroKernelFn KernelFor(int panels) {
   return panels == 1   ? &MicroKernel<R, 1>
          : panels == 2 ? &MicroKernel<R, 2>
-                       : &MicroKernel<R, 3>;
+         : panels == 3 ? &MicroKernel<R, 3>
+                       : &MicroKernel<(R < 6 ? R : 6), 4>;
 }
 
 MicroKernelFn SelectKernel(int rows, int panels) {
@@ -229,15 +230,19 @@ void GemmAvx512(const float* x,
                 int64_t panel_begin,
                 int64_t panel_end) {
   for (int64_t p0 = panel_begin; p0 < panel_end;) {
-    // Groups of 3 panels, but 4 = 2 + 2 (a lone panel tile is load-bound).
+    // Tiles of 8 rows x 3 panels, or 6 rows x 4 panels where that avoids a
+    // 1- or 2-panel tile (load-bound): 4, 7 = 4 + 3 and 8 = 4 + 4 panels.
     const int64_t remaining = panel_end - p0;
-    const int np = static_cast<int>(
-        remaining == 4 ? 2 : std::min<int64_t>(kPanelTile, remaining));
+    const int np =
+        static_cast<int>(remaining == 4 || remaining == 7 || remaining == 8
+                             ? 4
+                             : std::min<int64_t>(kPanelTile, remaining));
+    const int64_t row_tile = np == 4 ? 6 : kRowTile;
     const float* wp = w.data + p0 * w.panel_stride;
     const float* b = w.bias != nullptr ? w.bias + p0 * 16 : nullptr;
-    const MicroKernelFn full = SelectKernel(kRowTile, np);
+    const MicroKernelFn full = SelectKernel(static_cast<int>(row_tile), np);
     int64_t r0 = 0;
-    for (; r0 + kRowTile <= rows; r0 += kRowTile) {
+    for (; r0 + row_tile <= rows; r0 += row_tile) {
       full(x + r0 * ldx,
            ldx,
            xks,

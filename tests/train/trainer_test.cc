@@ -352,6 +352,55 @@ TEST(Adam, WeightDecayIsClassicL2) {
   EXPECT_DOUBLE_EQ(GetLearningRate(*optimizer), 0.01);
 }
 
+TrainerOptions WithEngine(TrainerOptions options, const std::string& engine) {
+  options.engine = engine;
+  return options;
+}
+
+TEST_F(TrainerTest, FastAndTorchEnginesTrainAlike) {
+  const auto fast_dir = root_ / "fast";
+  const auto torch_dir = root_ / "torch";
+  auto fast = MakeTrainer(WithEngine(Options(3), "fast"), fast_dir);
+  auto reference = MakeTrainer(WithEngine(Options(3), "torch"), torch_dir);
+  EXPECT_EQ(fast->engine(), "fast");
+  EXPECT_EQ(reference->engine(), "torch");
+  const TrainSummary a = fast->Train(*train_, *val_);
+  const TrainSummary b = reference->Train(*train_, *val_);
+  ASSERT_EQ(a.history.size(), 3u);
+  ASSERT_EQ(b.history.size(), 3u);
+  // Same initialisation and batches: the engines differ by float rounding
+  // only, which grows slowly over the steps.
+  EXPECT_NEAR(a.history[0].train_loss,
+              b.history[0].train_loss,
+              1e-3 * b.history[0].train_loss);
+  for (size_t e = 0; e < 3; ++e) {
+    EXPECT_NEAR(a.history[e].val_loss,
+                b.history[e].val_loss,
+                2e-2 * b.history[e].val_loss)
+        << "epoch " << e + 1;
+  }
+}
+
+TEST_F(TrainerTest, EnginesShareCheckpoints) {
+  // Fast for one epoch, then torch resumes to two; and the other way round.
+  for (const auto& [first, second] :
+       std::vector<std::pair<std::string, std::string>>{{"fast", "torch"},
+                                                        {"torch", "fast"}}) {
+    const auto dir = root_ / (first + "_then_" + second);
+    MakeTrainer(WithEngine(Options(1), first), dir)->Train(*train_, *val_);
+    auto resumed = MakeTrainer(WithEngine(Options(2), second), dir);
+    const TrainSummary summary = resumed->Train(*train_, *val_);
+    EXPECT_EQ(summary.start_epoch, 1) << first;
+    ASSERT_EQ(summary.history.size(), 2u) << first;
+    EXPECT_EQ(summary.history[1].step, 8) << first;
+    EXPECT_LT(summary.history[1].val_loss, summary.history[0].val_loss)
+        << first << " then " << second;
+    // The checkpoint labels with the eval-mode torch forward as well.
+    Labeler loaded = LoadLabelerFromCheckpoint(dir / "checkpoints/last.pt");
+    ExpectSameWeights(loaded, resumed->model());
+  }
+}
+
 TEST(TrainerOptions, DecodeAndValidate) {
   const TrainerOptions options = DecodeTrainerOptions(
       ParseYaml("batch_size: 32\nmax_epochs: 4\nresume: false\n"
@@ -364,6 +413,11 @@ TEST(TrainerOptions, DecodeAndValidate) {
   EXPECT_THROW(DecodeTrainerOptions(ParseYaml("batch_size: 0\n", "t")),
                ConfigError);
   EXPECT_THROW(DecodeTrainerOptions(ParseYaml("bach_size: 3\n", "t")),
+               ConfigError);
+  EXPECT_EQ(options.engine, "fast");
+  EXPECT_EQ(DecodeTrainerOptions(ParseYaml("engine: torch\n", "t")).engine,
+            "torch");
+  EXPECT_THROW(DecodeTrainerOptions(ParseYaml("engine: jax\n", "t")),
                ConfigError);
 }
 
