@@ -73,16 +73,30 @@ struct ScalingArgs {
 };
 
 /// y[i] = sum_{k < len} m_t[k * ld + i] * x[k] for i < out_p (out_p % 8 ==
-/// 0), i.e. y = M x with M stored transposed (`m_t` is `len x ld`). Eight
-/// outputs at a time are accumulated in a local block, in order of k.
+/// 0), i.e. y = M x with M stored transposed (`m_t` is `len x ld`). 32
+/// outputs at a time (8 for the rest) are accumulated in a local block, in
+/// order of k.
 SOMA_FAST_LOSS_INLINE void MatVecT(const double* __restrict m_t,
                                    int64_t ld,
                                    int64_t len,
                                    const double* __restrict x,
                                    int64_t out_p,
                                    double* __restrict y) {
-  for (int64_t i0 = 0; i0 < out_p; i0 += 8) {
-    double acc[8] = {0, 0, 0, 0, 0, 0, 0, 0};
+  // Four independent 8-wide accumulators per pass: one would serialise on
+  // the FMA latency.
+  int64_t i0 = 0;
+  for (; i0 + 32 <= out_p; i0 += 32) {
+    double acc[32] = {};
+    const double* col = m_t + i0;
+    for (int64_t k = 0; k < len; ++k) {
+      const double xk = x[k];
+      const double* row = col + k * ld;
+      for (int e = 0; e < 32; ++e) acc[e] += row[e] * xk;
+    }
+    for (int e = 0; e < 32; ++e) y[i0 + e] = acc[e];
+  }
+  for (; i0 < out_p; i0 += 8) {
+    double acc[8] = {};
     const double* col = m_t + i0;
     for (int64_t k = 0; k < len; ++k) {
       const double xk = x[k];
@@ -102,16 +116,14 @@ SOMA_FAST_LOSS_INLINE void OuterSumRow(const double* __restrict a,
                                        int64_t ld_vec,
                                        int iters,
                                        double* __restrict m) {
-  for (int64_t j0 = 0; j0 < ld_vec; j0 += 8) {
-    double acc[8] = {0, 0, 0, 0, 0, 0, 0, 0};
-    for (int t = 0; t < iters; ++t) {
-      const double at = a[t * ld_coef];
-      const double rt = r[t * ld_coef];
-      const double* qt = q + t * ld_vec + j0;
-      const double* bt = b + t * ld_vec + j0;
-      for (int e = 0; e < 8; ++e) acc[e] += at * qt[e] + rt * bt[e];
-    }
-    for (int e = 0; e < 8; ++e) m[j0 + e] = acc[e];
+  // The whole row accumulates at once (ld_vec / 8 independent chains).
+  for (int64_t j = 0; j < ld_vec; ++j) m[j] = 0.0;
+  for (int t = 0; t < iters; ++t) {
+    const double at = a[t * ld_coef];
+    const double rt = r[t * ld_coef];
+    const double* qt = q + t * ld_vec;
+    const double* bt = b + t * ld_vec;
+    for (int64_t j = 0; j < ld_vec; ++j) m[j] += at * qt[j] + rt * bt[j];
   }
 }
 
