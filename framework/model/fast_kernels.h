@@ -1,7 +1,9 @@
-// CPU kernels of the optimised labeler forward (fast_labeler.h): a GEMM
-// against pre-packed weights with a fused epilogue (bias, residual, ReLU), row
-// softmax, one attention head, and the per-frame output normalisations
-// (Sinkhorn optimal transport, log-softmax). No torch dependency.
+// CPU kernels of the optimised labeler forward (fast_labeler.h) and of the
+// training engine (fast_train.h): a GEMM against pre-packed weights with a
+// fused epilogue (bias, residual, ReLU) that can also read its left operand
+// transposed in place, row softmax, one attention head, and the per-frame
+// output normalisations (Sinkhorn optimal transport, log-softmax). No torch
+// dependency.
 //
 // Layout convention: activations are point-major (`rows x channels`, one row
 // per point, channels contiguous, row stride `ld`), so a per-point conv is

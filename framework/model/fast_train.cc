@@ -1,6 +1,7 @@
 #include "framework/model/fast_train.h"
 
 #include "framework/core/error.h"
+#include "framework/model/fast_loss.h"
 #include "framework/model/labeler.h"
 #include "framework/model/layers.h"
 #include "framework/model/normalization.h"
@@ -364,6 +365,8 @@ LinearOp::LinearOp(std::vector<Part> parts, std::vector<int64_t> in_order)
 }
 
 void LinearOp::Pack() {
+  fwd_packed_ = false;
+  bwd_packed_ = false;
   const int64_t mp = RoundUp16(out_);
   const int64_t kp = RoundUp16(in_);
   wt_.Resize(static_cast<size_t>(in_ * mp + 16));
@@ -395,7 +398,40 @@ void LinearOp::Forward(const Context& ctx,
                        int64_t rows,
                        float* y,
                        int64_t ldy,
-                       const GemmEpilogue& epilogue) const {
+                       const GemmEpilogue& epilogue) {
+  if (ctx.bf16) {
+    SOMA_CHECK(epilogue.row_scale == nullptr && epilogue.relu_columns == 0)
+        << "bf16 products support a residual epilogue only";
+    if (!fwd_packed_) {
+      // B(k, m) = W[m][k].
+      internal::PrepareBf16B(in_, out_, &fwd_b_);
+      internal::PackBf16B(w_.data(), 1, RoundUp16(in_), 0, in_, &fwd_b_);
+      fwd_packed_ = true;
+    }
+    scratch_.resize(static_cast<size_t>(at::get_num_threads()));
+    ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+      const bool residual = epilogue.residual != nullptr;
+      if (residual && epilogue.residual != y) {
+        CopyColumns(epilogue.residual + begin * epilogue.ld_residual,
+                    epilogue.ld_residual,
+                    end - begin,
+                    out_,
+                    y + begin * ldy,
+                    ldy);
+      }
+      internal::MatMulBf16(x + begin * ldx,
+                           ldx,
+                           1,
+                           end - begin,
+                           fwd_b_,
+                           bias_.data(),
+                           residual,
+                           y + begin * ldy,
+                           ldy,
+                           scratch_[static_cast<size_t>(at::get_thread_num())]);
+    });
+    return;
+  }
   const WeightView w{wt_.data(), 16, RoundUp16(out_), bias_.data(), out_, in_};
   ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
     GemmPacked(ctx.isa,
@@ -440,40 +476,66 @@ void LinearOp::Backward(const Context& ctx,
           partial[static_cast<size_t>(c)][static_cast<size_t>(m)];
     }
   }
-  // dW = dy^T x (dy read transposed in place), accumulated over chunks of
-  // rows; threads split the output rows (multiples of 8, the micro-kernel's
-  // row tile).
-  const int64_t row_tiles = (out_ + 7) / 8;
-  at::parallel_for(0, row_tiles, 1, [&](int64_t begin, int64_t end) {
-    const int64_t m0 = begin * 8;
-    const int64_t m1 = std::min(out_, end * 8);
-    float* dw = dw_.data() + m0 * kp;
-    for (int64_t c0 = 0; c0 < rows; c0 += kReductionChunk) {
-      const int64_t cn = std::min(kReductionChunk, rows - c0);
-      GemmEpilogue ep;
-      if (c0 > 0) {
-        ep.residual = dw;
-        ep.ld_residual = kp;
+  if (ctx.bf16) {
+    // dW = dy^T x on AMX: x packed once (threads split its rows), then the
+    // output rows of dW in blocks of 32.
+    internal::PrepareBf16B(rows, in_, &x_b_);
+    const int64_t pairs = (x_b_.k_pad + 1) / 2;
+    at::parallel_for(0, pairs, 64, [&](int64_t begin, int64_t end) {
+      internal::PackBf16B(x, ldx, 1, 2 * begin, std::min(rows, 2 * end), &x_b_);
+    });
+    scratch_.resize(static_cast<size_t>(at::get_num_threads()));
+    const int64_t blocks = (out_ + 31) / 32;
+    at::parallel_for(0, blocks, 1, [&](int64_t begin, int64_t end) {
+      const int64_t m0 = begin * 32;
+      const int64_t m1 = std::min(out_, end * 32);
+      internal::MatMulBf16(dy + m0,
+                           1,
+                           ldy,
+                           m1 - m0,
+                           x_b_,
+                           nullptr,
+                           false,
+                           dw_.data() + m0 * kp,
+                           kp,
+                           scratch_[static_cast<size_t>(at::get_thread_num())]);
+    });
+  } else {
+    // dW = dy^T x (dy read transposed in place), accumulated over chunks of
+    // rows; threads split the output rows (multiples of 8, the micro-kernel's
+    // row tile).
+    const int64_t row_tiles = (out_ + 7) / 8;
+    at::parallel_for(0, row_tiles, 1, [&](int64_t begin, int64_t end) {
+      const int64_t m0 = begin * 8;
+      const int64_t m1 = std::min(out_, end * 8);
+      float* dw = dw_.data() + m0 * kp;
+      for (int64_t c0 = 0; c0 < rows; c0 += kReductionChunk) {
+        const int64_t cn = std::min(kReductionChunk, rows - c0);
+        GemmEpilogue ep;
+        if (c0 > 0) {
+          ep.residual = dw;
+          ep.ld_residual = kp;
+        }
+        internal::GemmPackedStrided(
+            ctx.isa,
+            dy + c0 * ldy + m0,
+            1,
+            ldy,
+            m1 - m0,
+            WeightView{x + c0 * ldx, 16, ldx, nullptr, in_, cn},
+            dw,
+            kp,
+            ep,
+            0,
+            NumPanels(in_));
       }
-      internal::GemmPackedStrided(
-          ctx.isa,
-          dy + c0 * ldy + m0,
-          1,
-          ldy,
-          m1 - m0,
-          WeightView{x + c0 * ldx, 16, ldx, nullptr, in_, cn},
-          dw,
-          kp,
-          ep,
-          0,
-          NumPanels(in_));
-    }
-    if (rows == 0) {
-      for (int64_t m = m0; m < m1; ++m) {
-        std::fill(dw_.data() + m * kp, dw_.data() + m * kp + in_, 0.0f);
+      if (rows == 0) {
+        for (int64_t m = m0; m < m1; ++m) {
+          std::fill(dw_.data() + m * kp, dw_.data() + m * kp + in_, 0.0f);
+        }
       }
-    }
-  });
+    });
+  }
   // Scatter into torch's layout.
   int64_t row = 0;
   for (Part& part : parts_) {
@@ -492,6 +554,27 @@ void LinearOp::Backward(const Context& ctx,
     row += m;
   }
   if (dx == nullptr) return;
+  if (ctx.bf16) {
+    if (!bwd_packed_) {
+      // B(m, k) = W[m][k].
+      internal::PrepareBf16B(out_, in_, &bwd_b_);
+      internal::PackBf16B(w_.data(), kp, 1, 0, out_, &bwd_b_);
+      bwd_packed_ = true;
+    }
+    ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+      internal::MatMulBf16(dy + begin * ldy,
+                           ldy,
+                           1,
+                           end - begin,
+                           bwd_b_,
+                           nullptr,
+                           accumulate,
+                           dx + begin * lddx,
+                           lddx,
+                           scratch_[static_cast<size_t>(at::get_thread_num())]);
+    });
+    return;
+  }
   // dx = dy W.
   const WeightView w{w_.data(), 16, kp, nullptr, in_, out_};
   ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
@@ -1319,10 +1402,8 @@ class SinkhornLossOp : public NormalizationLossOp {
     const int64_t l = num_labels;
     const double alpha = bin_score_.item<double>();
     d_scores.Resize(scores.rows, l);
-    const int64_t threads = at::get_num_threads();
     std::vector<double> loss(static_cast<size_t>(ctx.batch), 0.0);
     std::vector<double> dalpha(static_cast<size_t>(ctx.batch), 0.0);
-    (void)threads;
     at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
       internal::FrameLossScratch scratch;
       std::vector<float> g(static_cast<size_t>((n + 1) * (l + 1)));
@@ -1431,6 +1512,14 @@ std::unique_ptr<FastTrainer> FastTrainer::Create(
     const FastTrainerOptions& options,
     std::string* why_not) {
   std::string reason;
+  if (options.bf16 && !internal::AmxBf16Available()) {
+    if (why_not != nullptr) {
+      *why_not =
+          "bf16 products need AMX-BF16, which this CPU (or kernel) "
+          "does not provide";
+    }
+    return nullptr;
+  }
   std::unique_ptr<fast::BackboneOp> backbone;
   std::unique_ptr<fast::NormalizationLossOp> norm;
   try {
@@ -1456,6 +1545,7 @@ FastTrainer::FastTrainer(LabelerImpl& model,
                          const FastTrainerOptions& options)
     : model_(model), backbone_(std::move(backbone)), loss_(std::move(loss)) {
   ctx_.isa = internal::ResolveIsa(options.isa);
+  ctx_.bf16 = options.bf16;
   encoder_ = std::make_unique<fast::ResBlockOp>(*model.encoder->block,
                                                 /*relu_out=*/true,
                                                 1.0f);

@@ -21,6 +21,11 @@
 // Gradients are checked against autograd per layer and for the whole model
 // (tests/model/fast_train_test.cc).
 //
+// With `FastTrainerOptions::bf16` (`train.precision=bf16`) the per-point
+// convolutions' products (forward, dX, dW) run in bf16 on Intel AMX with fp32
+// accumulation (bf16_gemm.h); weights, optimizer state, BatchNorm, attention,
+// Sinkhorn and the loss stay fp32/double.
+//
 // Every component declares its own fast path: BackboneImpl::MakeFastTrainOp
 // and NormalizationImpl::MakeFastLossOp return nullptr with a reason when a
 // component has none, and FastTrainer::Create reports that reason, so a new
@@ -28,8 +33,8 @@
 // line, never silently.
 #pragma once
 
+#include "framework/model/bf16_gemm.h"
 #include "framework/model/fast_kernels.h"
-#include "framework/model/fast_loss.h"
 #include "framework/model/loss.h"
 
 #include <ATen/core/Tensor.h>
@@ -77,6 +82,9 @@ struct Mat {
 /// What every op of one step shares.
 struct Context {
   internal::KernelIsa isa = internal::KernelIsa::kPortable;
+  /// Per-point convolutions' products in bf16 on AMX (bf16_gemm.h), fp32
+  /// accumulation; everything else stays fp32/double.
+  bool bf16 = false;
   int64_t batch = 0;   // B frames
   int64_t points = 0;  // N points per frame
   int64_t rows() const { return batch * points; }
@@ -103,6 +111,8 @@ class LinearOp {
 
   /// Re-packs the weights from the torch parameters (after an update).
   void Pack();
+  /// The weights rounded to bf16, as the bf16 products see them (tests).
+  bool bf16_packed() const { return fwd_packed_; }
   /// `y = x W^T + b` (+ epilogue) for `rows` rows.
   void Forward(const Context& ctx,
                const float* x,
@@ -110,7 +120,7 @@ class LinearOp {
                int64_t rows,
                float* y,
                int64_t ldy,
-               const internal::GemmEpilogue& epilogue = {}) const;
+               const internal::GemmEpilogue& epilogue = {});
   /// Writes dL/dW and dL/db into the torch `.grad()` tensors (overwriting)
   /// and, if `dx` is not null, `dx = dy W` (`accumulate`: `dx += dy W`).
   void Backward(const Context& ctx,
@@ -133,6 +143,13 @@ class LinearOp {
   internal::AlignedFloats w_;     // out x RoundUp16(in): backward view
   internal::AlignedFloats dw_;    // out x RoundUp16(in)
   std::vector<double> db_;
+  // bf16 path: packed operands and per-thread scratch.
+  internal::PackedBf16 fwd_b_;  // W^T
+  internal::PackedBf16 bwd_b_;  // W
+  internal::PackedBf16 x_b_;    // the input, for dW
+  bool fwd_packed_ = false;
+  bool bwd_packed_ = false;
+  std::vector<internal::Bf16Scratch> scratch_;
 };
 
 /// BatchNorm1d in training mode on a `rows x C` matrix, with an optional
@@ -286,6 +303,9 @@ std::unique_ptr<NormalizationLossOp> MakeLogSoftmaxLossOp(
 /// Options of the fast engine.
 struct FastTrainerOptions {
   internal::KernelIsa isa = internal::KernelIsa::kAuto;
+  /// The per-point convolutions' products in bf16 on AMX (requires
+  /// internal::AmxBf16Available(); Create fails with the reason otherwise).
+  bool bf16 = false;
 };
 
 /// The training engine: one call computes the batch loss and every gradient.
@@ -307,6 +327,7 @@ class FastTrainer {
   double Step(const at::Tensor& points, const at::Tensor& label_ids);
 
   internal::KernelIsa isa() const { return ctx_.isa; }
+  bool bf16() const { return ctx_.bf16; }
 
  private:
   FastTrainer(LabelerImpl& model,

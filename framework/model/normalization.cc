@@ -92,7 +92,8 @@ std::unique_ptr<fast::NormalizationLossOp> NormalizationImpl::MakeFastLossOp(
 
 namespace {
 
-/// The loss's options if it has a fast path, else nullptr with the reason.
+/// True with the loss's options if it has a fast path, else false with the
+/// reason in `*why_not`.
 bool FastLossOptions(const LabelingLoss& loss,
                      LabelingLossOptions* options,
                      std::string* why_not) {

@@ -273,6 +273,9 @@ void TrainerOptions::Validate() const {
   if (engine != "fast" && engine != "torch") {
     fail("engine", engine, "engine is fast or torch");
   }
+  if (precision != "fp32" && precision != "bf16") {
+    fail("precision", precision, "precision is fp32 or bf16");
+  }
   early_stopping.Validate();
 }
 
@@ -289,6 +292,7 @@ TrainerOptions DecodeTrainerOptions(const ConfigNode& node) {
   reader.Read("prefetch", &options.prefetch);
   reader.Read("progress", &options.progress);
   reader.Read("engine", &options.engine);
+  reader.Read("precision", &options.precision);
   if (const ConfigNode* resume = reader.Child("resume");
       resume != nullptr && !resume->IsNull()) {
     if (resume->IsBool()) {
@@ -318,6 +322,9 @@ TrainerOptions DecodeTrainerOptions(const ConfigNode& node) {
   reader.Check("engine",
                options.engine == "fast" || options.engine == "torch",
                "engine is fast or torch");
+  reader.Check("precision",
+               options.precision == "fp32" || options.precision == "bf16",
+               "precision is fp32 or bf16");
   reader.Finish();
   return options;
 }
@@ -524,7 +531,17 @@ Trainer::Trainer(TrainerOptions options,
   CreateDirectories(run_dir_ / "checkpoints");
   if (options_.engine == "fast") {
     std::string why_not;
-    fast_ = FastTrainer::Create(*model_, *loss_, {}, &why_not);
+    FastTrainerOptions fast_options;
+    if (options_.precision == "bf16") {
+      if (internal::AmxBf16Available()) {
+        fast_options.bf16 = true;
+      } else {
+        SOMA_LOG(WARNING,
+                 "train: precision=bf16 needs AMX-BF16, which this CPU (or "
+                 "kernel) does not provide; training in fp32");
+      }
+    }
+    fast_ = FastTrainer::Create(*model_, *loss_, fast_options, &why_not);
     if (fast_ == nullptr) {
       SOMA_LOG(WARNING,
                "train: engine=fast cannot train this model ({}); using the "
@@ -749,10 +766,11 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
            "train: {} engine{}, {} intra-op thread(s)",
            engine(),
            fast_ != nullptr
-               ? fmt::format(" ({} kernels)",
+               ? fmt::format(" ({} kernels{})",
                              fast_->isa() == internal::KernelIsa::kAvx512
                                  ? "AVX-512"
-                                 : "portable")
+                                 : "portable",
+                             fast_->bf16() ? ", bf16 products on AMX" : "")
                : "",
            at::get_num_threads());
 

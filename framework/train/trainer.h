@@ -78,6 +78,11 @@ struct TrainerOptions {
   /// the model supports it, else torch with a logged reason; "torch":
   /// libtorch autograd and torch::optim.
   std::string engine = "fast";
+  /// "fp32", or "bf16": the fast engine's per-point convolution products in
+  /// bf16 on AMX with fp32 accumulation and fp32 master weights (needs
+  /// AMX-BF16; elsewhere fp32 with a logged reason). The torch engine is
+  /// always fp32.
+  std::string precision = "fp32";
   uint64_t seed = 0;      // root seed (from the run, not the `train` group)
   void Validate() const;  // ConfigError on violation
 };

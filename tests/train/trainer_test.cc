@@ -419,6 +419,11 @@ TEST(TrainerOptions, DecodeAndValidate) {
             "torch");
   EXPECT_THROW(DecodeTrainerOptions(ParseYaml("engine: jax\n", "t")),
                ConfigError);
+  EXPECT_EQ(options.precision, "fp32");
+  EXPECT_EQ(DecodeTrainerOptions(ParseYaml("precision: bf16\n", "t")).precision,
+            "bf16");
+  EXPECT_THROW(DecodeTrainerOptions(ParseYaml("precision: fp16\n", "t")),
+               ConfigError);
 }
 
 }  // namespace

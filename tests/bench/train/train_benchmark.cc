@@ -3,7 +3,8 @@
 // sizes and batch sizes of configs/scale/paper.yaml and configs/scale/cpu.yaml
 // (L = 41 labels, N = 44 points, Sinkhorn with 35 iterations), exactly the
 // step `soma train` runs: `torch` is libtorch autograd + torch::optim::Adam,
-// `fast` is FastTrainer::Step + FusedAdamStep (train.engine=fast).
+// `fast` is FastTrainer::Step + FusedAdamStep (train.engine=fast),
+// `fast_bf16` the same with train.precision=bf16 (AMX; skipped elsewhere).
 // items_per_second = training frames per second; peak_rss_mib = the
 // process's peak resident memory after the run (the rows run in order, so it
 // is cumulative).
@@ -97,9 +98,11 @@ void BM_TrainStep(benchmark::State& state,
   }
   const AugmentedTargets targets = BuildAugmentedTargets(labels, kNumLabels);
   std::unique_ptr<FastTrainer> fast;
-  if (engine == "fast") {
+  if (engine == "fast" || engine == "fast_bf16") {
     std::string why_not;
-    fast = FastTrainer::Create(*model, loss, {}, &why_not);
+    FastTrainerOptions options;
+    options.bf16 = engine == "fast_bf16";
+    fast = FastTrainer::Create(*model, loss, options, &why_not);
     if (fast == nullptr) {
       state.SkipWithError(why_not.c_str());
       return;
@@ -140,12 +143,22 @@ BENCHMARK_CAPTURE(BM_TrainStep, cpu_fast, "cpu", "fast")
     ->Arg(2)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
+BENCHMARK_CAPTURE(BM_TrainStep, cpu_fast_bf16, "cpu", "fast_bf16")
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 BENCHMARK_CAPTURE(BM_TrainStep, paper_torch, "paper", "torch")
     ->Arg(1)
     ->Arg(2)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK_CAPTURE(BM_TrainStep, paper_fast, "paper", "fast")
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_TrainStep, paper_fast_bf16, "paper", "fast_bf16")
     ->Arg(1)
     ->Arg(2)
     ->Unit(benchmark::kMillisecond)
