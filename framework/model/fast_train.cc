@@ -329,6 +329,30 @@ SOMA_VECTOR_CLONES void BatchNormGradApply(const float* __restrict y,
   }
 }
 
+/// Softmax backward of `n` rows in place: `ds = p * (ds - rowsum(ds * p))
+/// * scale` (`ds` holds dL/dp on entry).
+SOMA_VECTOR_CLONES void SoftmaxBackwardRows(const float* __restrict p,
+                                            int64_t ldp,
+                                            int64_t n,
+                                            float scale,
+                                            float* __restrict ds,
+                                            int64_t lds) {
+  for (int64_t r = 0; r < n; ++r) {
+    const float* pr = p + r * ldp;
+    float* sr = ds + r * lds;
+    // 16 partial sums, so that the reduction vectorises.
+    float part[16] = {};
+    int64_t j = 0;
+    for (; j + 16 <= n; j += 16) {
+      for (int e = 0; e < 16; ++e) part[e] += sr[j + e] * pr[j + e];
+    }
+    float dot = 0.0f;
+    for (; j < n; ++j) dot += sr[j] * pr[j];
+    for (int e = 0; e < 16; ++e) dot += part[e];
+    for (j = 0; j < n; ++j) sr[j] = pr[j] * (sr[j] - dot) * scale;
+  }
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -1022,6 +1046,10 @@ void SelfAttentionOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
     at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
       HeadScratch scratch;
       scratch.t0.Resize(static_cast<size_t>(dh * np + 16));
+      // The 1/sqrt(dh) score scale as the GEMM's per-row epilogue scale.
+      const std::vector<float> scales(static_cast<size_t>(n), scale);
+      GemmEpilogue scaled;
+      scaled.row_scale = scales.data();
       for (int64_t f = begin; f < end; ++f) {
         for (int64_t head = 0; head < h; ++head) {
           const float* q = L.q.row(f * n) + head * dh;
@@ -1037,13 +1065,9 @@ void SelfAttentionOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
                      WeightView{kt, 16, np, nullptr, n, dh},
                      p,
                      L.probs.ld,
-                     {},
+                     scaled,
                      0,
                      NumPanels(n));
-          for (int64_t r = 0; r < n; ++r) {
-            float* pr = p + r * L.probs.ld;
-            for (int64_t j = 0; j < n; ++j) pr[j] *= scale;
-          }
           internal::SoftmaxRows(ctx.isa, p, L.probs.ld, n, n);
           GemmPacked(ctx.isa,
                      p,
@@ -1177,14 +1201,7 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
                      0,
                      NumPanels(n));
           // dS = P * (dP - rowsum(dP * P)) / sqrt(dh).
-          for (int64_t r = 0; r < n; ++r) {
-            const float* pr = p + r * ldp;
-            float* sr = ds + r * np;
-            float dot = 0.0f;
-            for (int64_t j = 0; j < n; ++j) dot += sr[j] * pr[j];
-            for (int64_t j = 0; j < n; ++j)
-              sr[j] = pr[j] * (sr[j] - dot) * scale;
-          }
+          SoftmaxBackwardRows(p, ldp, n, scale, ds, np);
           // dV = P^T dO (P read transposed in place).
           internal::GemmPackedStrided(
               ctx.isa,
