@@ -549,6 +549,11 @@ Trainer::Trainer(TrainerOptions options,
                why_not);
     }
   }
+  if (fast_ == nullptr && options_.precision == "bf16") {
+    SOMA_LOG(WARNING,
+             "train: precision=bf16 applies to the fast engine only; the torch "
+             "engine trains in fp32");
+  }
 }
 
 Trainer::~Trainer() = default;
