@@ -111,8 +111,6 @@ class LinearOp {
 
   /// Re-packs the weights from the torch parameters (after an update).
   void Pack();
-  /// The weights rounded to bf16, as the bf16 products see them (tests).
-  bool bf16_packed() const { return fwd_packed_; }
   /// `y = x W^T + b` (+ epilogue) for `rows` rows.
   void Forward(const Context& ctx,
                const float* x,
