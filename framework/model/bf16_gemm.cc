@@ -104,37 +104,19 @@ PackRowsOfA(const float* a,
             int64_t k_pad,
             int64_t i0,
             uint16_t* out) {
+  const int64_t rows = std::min(kRowBlock, m - i0);
+  // Rows past m, and the padding of k, are zero.
   for (int64_t r = 0; r < kRowBlock; ++r) {
     uint16_t* dst = out + r * k_pad;
-    const int64_t i = i0 + r;
-    if (i >= m) {
-      std::fill(dst, dst + k_pad, uint16_t{0});
-      continue;
-    }
-    if (a_rs == 1 && a_cs != 1) break;  // transposed: below
-    const float* src = a + i * a_rs;
-    int64_t l = 0;
-    if (a_cs == 1) {
-      for (; l + 16 <= k; l += 16) {
-        const __m256bh v = _mm512_cvtneps_pbh(_mm512_loadu_ps(src + l));
-        std::memcpy(dst + l, &v, 32);
-      }
-    }
-    for (; l < k; ++l) dst[l] = ToBf16(src[l * a_cs]);
-    for (; l < k_pad; ++l) dst[l] = 0;
+    std::fill(dst + (r < rows ? k : 0), dst + k_pad, uint16_t{0});
   }
   if (a_rs == 1 && a_cs != 1) {
     // A stored transposed (the dW product reads dY^T): A(i, l) at
-    // a[l * a_cs + i]. 16 rows at a time gather 16 values of l.
-    const int64_t rows = std::min(kRowBlock, m - i0);
+    // a[l * a_cs + i]. Blocks of 64 values of l, whose 64 source rows stay
+    // in L1 while the block's rows of A gather 16 values at a time.
     const __m512i index = _mm512_mullo_epi32(
         _mm512_set_epi32(15, 14, 13, 12, 11, 10, 9, 8, 7, 6, 5, 4, 3, 2, 1, 0),
         _mm512_set1_epi32(static_cast<int>(a_cs)));
-    for (int64_t r = rows; r < kRowBlock; ++r) {
-      std::fill(out + r * k_pad, out + (r + 1) * k_pad, uint16_t{0});
-    }
-    // Blocks of 64 values of l: their 64 source rows stay in L1 while the
-    // block's rows of A are gathered from them.
     constexpr int64_t kBlockL = 64;
     const bool gather = a_cs <= (int64_t{1} << 26);
     for (int64_t l0 = 0; l0 < k; l0 += kBlockL) {
@@ -153,9 +135,19 @@ PackRowsOfA(const float* a,
         for (; l < l1; ++l) dst[l] = ToBf16(src[l * a_cs]);
       }
     }
-    for (int64_t r = 0; r < rows; ++r) {
-      std::fill(out + r * k_pad + k, out + (r + 1) * k_pad, uint16_t{0});
+    return;
+  }
+  for (int64_t r = 0; r < rows; ++r) {
+    uint16_t* dst = out + r * k_pad;
+    const float* src = a + (i0 + r) * a_rs;
+    int64_t l = 0;
+    if (a_cs == 1) {
+      for (; l + 16 <= k; l += 16) {
+        const __m256bh v = _mm512_cvtneps_pbh(_mm512_loadu_ps(src + l));
+        std::memcpy(dst + l, &v, 32);
+      }
     }
+    for (; l < k; ++l) dst[l] = ToBf16(src[l * a_cs]);
   }
 }
 

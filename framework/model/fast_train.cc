@@ -40,18 +40,28 @@ void ParallelRows(int64_t n, int64_t grain, const F& f) {
   at::parallel_for(0, n, grain, f);
 }
 
-/// `f(chunk, begin, end)` over [0, n) split into one range per thread (for
-/// reductions into per-chunk partials); returns the number of chunks.
+/// Per-column sums over the rows [0, n), split into one row range per
+/// thread: `f(begin, end, sums, tmp)` adds its range's sums into `sums`
+/// (`width` doubles, zeroed) with `tmp` (`width` floats) as scratch. Returns
+/// the totals, the ranges' sums added in range order.
 template <typename F>
-int64_t ParallelChunks(int64_t n, const F& f) {
+std::vector<double> ParallelColumnReduce(int64_t n, int64_t width, const F& f) {
   const int64_t chunks = std::max<int64_t>(
       1, std::min<int64_t>(at::get_num_threads(), n / kRowGrain));
+  std::vector<std::vector<double>> partial(static_cast<size_t>(chunks));
   at::parallel_for(0, chunks, 1, [&](int64_t begin, int64_t end) {
+    std::vector<float> tmp(static_cast<size_t>(width));
     for (int64_t c = begin; c < end; ++c) {
-      f(c, n * c / chunks, n * (c + 1) / chunks);
+      std::vector<double>& sums = partial[static_cast<size_t>(c)];
+      sums.assign(static_cast<size_t>(width), 0.0);
+      f(n * c / chunks, n * (c + 1) / chunks, sums.data(), tmp.data());
     }
   });
-  return chunks;
+  std::vector<double> total(static_cast<size_t>(width), 0.0);
+  for (const std::vector<double>& sums : partial) {
+    for (size_t i = 0; i < total.size(); ++i) total[i] += sums[i];
+  }
+  return total;
 }
 
 GemmEpilogue OffsetEpilogue(const GemmEpilogue& ep, int64_t r0) {
@@ -482,24 +492,11 @@ void LinearOp::Backward(const Context& ctx,
                         bool accumulate) {
   const int64_t kp = RoundUp16(in_);
   dw_.Resize(static_cast<size_t>(out_ * kp + 16));
-  // The bias gradient (per-chunk partial column sums).
-  std::vector<std::vector<double>> partial(
-      static_cast<size_t>(at::get_num_threads() + 1));
-  const int64_t chunks =
-      ParallelChunks(rows, [&](int64_t chunk, int64_t begin, int64_t end) {
-        std::vector<double>& sums = partial[static_cast<size_t>(chunk)];
-        sums.assign(static_cast<size_t>(out_), 0.0);
-        std::vector<float> tmp(static_cast<size_t>(out_));
-        ColumnSums(
-            dy + begin * ldy, ldy, end - begin, out_, sums.data(), tmp.data());
+  // The bias gradient.
+  db_ = ParallelColumnReduce(
+      rows, out_, [&](int64_t begin, int64_t end, double* sums, float* tmp) {
+        ColumnSums(dy + begin * ldy, ldy, end - begin, out_, sums, tmp);
       });
-  db_.assign(static_cast<size_t>(out_), 0.0);
-  for (int64_t c = 0; c < chunks; ++c) {
-    for (int64_t m = 0; m < out_; ++m) {
-      db_[static_cast<size_t>(m)] +=
-          partial[static_cast<size_t>(c)][static_cast<size_t>(m)];
-    }
-  }
   if (ctx.bf16) {
     // dW = dy^T x on AMX: x packed once (threads split its rows), then the
     // output rows of dW in blocks of 32.
@@ -652,21 +649,18 @@ void BatchNormOp::Forward(const Context& /*ctx*/,
   relu_ = relu;
   scale_ = scale;
   // Batch statistics, shifted by the first row against cancellation.
-  std::vector<std::vector<double>> partial(
-      static_cast<size_t>(at::get_num_threads() + 1));
-  const int64_t chunks =
-      ParallelChunks(rows, [&](int64_t chunk, int64_t begin, int64_t end) {
-        std::vector<double>& sums = partial[static_cast<size_t>(chunk)];
-        sums.assign(static_cast<size_t>(2 * c_count), 0.0);
-        std::vector<float> tmp(static_cast<size_t>(2 * c_count));
+  const std::vector<double> moments = ParallelColumnReduce(
+      rows,
+      2 * c_count,
+      [&](int64_t begin, int64_t end, double* sums, float* tmp) {
         ShiftedMoments(y + begin * ldy,
                        ldy,
                        end - begin,
                        c_count,
                        y,
-                       sums.data(),
-                       sums.data() + c_count,
-                       tmp.data());
+                       sums,
+                       sums + c_count,
+                       tmp);
       });
   mean_.resize(static_cast<size_t>(c_count));
   inv_std_.resize(static_cast<size_t>(c_count));
@@ -678,11 +672,8 @@ void BatchNormOp::Forward(const Context& /*ctx*/,
   float* running_var = bn_->running_var.data_ptr<float>();
   const double n = static_cast<double>(rows);
   for (int64_t c = 0; c < c_count; ++c) {
-    double s1 = 0, s2 = 0;
-    for (int64_t k = 0; k < chunks; ++k) {
-      s1 += partial[static_cast<size_t>(k)][static_cast<size_t>(c)];
-      s2 += partial[static_cast<size_t>(k)][static_cast<size_t>(c_count + c)];
-    }
+    const double s1 = moments[static_cast<size_t>(c)];
+    const double s2 = moments[static_cast<size_t>(c_count + c)];
     const double shifted_mean = s1 / n;
     const double var = std::max(0.0, s2 / n - shifted_mean * shifted_mean);
     const double mean = shifted_mean + y[c];
@@ -734,13 +725,10 @@ void BatchNormOp::Backward(const Context& /*ctx*/,
   const bool relu = relu_;
   // Pass 1: g = dout * scale * relu'(out) into dy (and dadd); per-channel
   // sums of g and g * xhat.
-  std::vector<std::vector<double>> partial(
-      static_cast<size_t>(at::get_num_threads() + 1));
-  const int64_t chunks =
-      ParallelChunks(rows, [&](int64_t chunk, int64_t begin, int64_t end) {
-        std::vector<double>& sums = partial[static_cast<size_t>(chunk)];
-        sums.assign(static_cast<size_t>(2 * c_count), 0.0);
-        std::vector<float> tmp(static_cast<size_t>(2 * c_count));
+  const std::vector<double> moments = ParallelColumnReduce(
+      rows,
+      2 * c_count,
+      [&](int64_t begin, int64_t end, double* sums, float* tmp) {
         BatchNormGradPass(y + begin * ldy,
                           ldy,
                           out + begin * ldout,
@@ -757,9 +745,9 @@ void BatchNormOp::Backward(const Context& /*ctx*/,
                           lddy,
                           dadd != nullptr ? dadd + begin * lddadd : nullptr,
                           lddadd,
-                          sums.data(),
-                          sums.data() + c_count,
-                          tmp.data());
+                          sums,
+                          sums + c_count,
+                          tmp);
       });
   std::vector<float> k1(static_cast<size_t>(c_count));
   std::vector<float> k2(static_cast<size_t>(c_count));
@@ -768,11 +756,8 @@ void BatchNormOp::Backward(const Context& /*ctx*/,
   float* dbeta = Grad(bn_->bias);
   const double n = static_cast<double>(rows);
   for (int64_t c = 0; c < c_count; ++c) {
-    double s1 = 0, s2 = 0;
-    for (int64_t k = 0; k < chunks; ++k) {
-      s1 += partial[static_cast<size_t>(k)][static_cast<size_t>(c)];
-      s2 += partial[static_cast<size_t>(k)][static_cast<size_t>(c_count + c)];
-    }
+    const double s1 = moments[static_cast<size_t>(c)];
+    const double s2 = moments[static_cast<size_t>(c_count + c)];
     dgamma[c] = static_cast<float>(s2);
     dbeta[c] = static_cast<float>(s1);
     const size_t i = static_cast<size_t>(c);

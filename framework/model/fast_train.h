@@ -257,7 +257,7 @@ class SelfAttentionOp : public BackboneOp {
   int64_t d_ = 0;
   int64_t heads_ = 0;
   std::vector<std::unique_ptr<Layer>> layers_;
-  Mat dxcat_, dz_, dqkv_, do_, dmerged_;
+  Mat dxcat_, dz_, dqkv_, do_;
 };
 
 /// The no-transformer ablation backbone (Conv1dBackboneImpl).
