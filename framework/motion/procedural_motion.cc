@@ -188,6 +188,57 @@ std::vector<Frame> Gait(const Clip& clip, bool run) {
   return frames;
 }
 
+/// Crouched locomotion: sneaking and duck walking with the hips low (knees
+/// at 70-130 degrees throughout), the trunk pitched forward and the arms
+/// forward or down for balance. Real captures hold whole segments of it
+/// (HDM05's sneaking takes, CMU's crouched walks) that upright gait, squats
+/// in place and hands-and-knees crawling do not cover.
+std::vector<Frame> CrouchWalk(const Clip& clip) {
+  const double speed = clip.U(0.15, 0.9);            // m/s
+  const double stride_freq = clip.U(0.5, 0.9);       // cycles/s
+  const double pitch = clip.U(0, 35) * kDeg;         // pelvis forward
+  const double hip_base = clip.U(60, 105) * kDeg;    // mean hip flexion
+  const double knee_base = clip.U(80, 125) * kDeg;   // mean knee flexion
+  const double ankle_base = clip.U(-20, 20) * kDeg;  // < 0: dorsiflexion
+  const double hip_amp = clip.U(10, 25) * kDeg;
+  const double knee_swing = clip.U(10, 30) * kDeg;  // extra in swing
+  const double lean = clip.U(20, 60) * kDeg;        // trunk, total
+  const double abduction = clip.U(0, 25) * kDeg;    // knees apart
+  const double shoulder = clip.U(0, 80) * kDeg;     // arms forward
+  const double arm_amp = clip.U(0, 20) * kDeg;
+  const double elbow = clip.U(10, 80) * kDeg;
+  const double heading = clip.U(-M_PI, M_PI);
+  const double phase0 = clip.U(0, kTwoPi);
+  std::vector<Frame> frames(clip.num_frames);
+  for (int i = 0; i < clip.num_frames; ++i) {
+    const double t = clip.Time(i);
+    const double phase = phase0 + kTwoPi * stride_freq * t;
+    Frame& f = frames[i];
+    AnatomicalPose& p = f.angles;
+    for (int side = 0; side < 2; ++side) {
+      const double ph = phase + side * M_PI;
+      const int hip = side == 0 ? kLeftHip : kRightHip;
+      const int knee = side == 0 ? kLeftKnee : kRightKnee;
+      const int ankle = side == 0 ? kLeftAnkle : kRightAnkle;
+      const double swing = std::max(0.0, std::sin(ph - M_PI * 0.95));
+      p[hip] = {hip_base + hip_amp * std::cos(ph), abduction, 0};
+      p[knee].flexion = knee_base + knee_swing * swing;
+      p[ankle].flexion = ankle_base + 10 * kDeg * std::sin(ph - 0.5);
+    }
+    // Arms from hanging (flexion 0, abduction -80) to forward (80, -10).
+    const double hang = -80 * kDeg + shoulder * 70.0 / 80.0;
+    p[kLeftShoulder] = {shoulder - arm_amp * std::cos(phase), hang, 0};
+    p[kRightShoulder] = {shoulder - arm_amp * std::cos(phase + M_PI), hang, 0};
+    SetBoth(p, kLeftElbow, kRightElbow, {elbow, 0, 0});
+    SetSpine(p, std::max(0.0, lean - pitch), 0, 5 * kDeg * std::cos(phase));
+    p[kHead].flexion = -0.6 * lean;  // looking ahead
+    f.root = Yaw(heading) * AxisRotation(pitch, Eigen::Vector3d::UnitX());
+    const Eigen::Vector3d forward = f.root * Eigen::Vector3d(0, -1, 0);
+    f.xy = forward.head<2>() * speed * t;
+  }
+  return frames;
+}
+
 std::vector<Frame> Walk(const Clip& clip) { return Gait(clip, false); }
 std::vector<Frame> Run(const Clip& clip) { return Gait(clip, true); }
 
@@ -693,6 +744,7 @@ const std::vector<std::pair<std::string, Generator>>& Generators() {
   static const std::vector<std::pair<std::string, Generator>> kGenerators = {
       {"walk", Walk},
       {"run", Run},
+      {"crouch_walk", CrouchWalk},
       {"jump", Jump},
       {"squat", Squat},
       {"kick", Kick},
