@@ -119,6 +119,45 @@ void ReduceLrOnPlateau::LoadState(std::string_view text) {
   last_epoch_ = ToInt(Field(state, "last_epoch", kWhat));
 }
 
+void CosineOptions::Validate() const {
+  if (warmup_steps < 0) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. scheduler.warmup_steps = {}. Violated "
+        "constraint: warmup_steps >= 0",
+        warmup_steps));
+  }
+  if (!(final_factor >= 0 && final_factor <= 1)) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. scheduler.final_factor = {}. Violated "
+        "constraint: 0 <= final_factor <= 1",
+        final_factor));
+  }
+}
+
+WarmupCosineLr::WarmupCosineLr(const CosineOptions& options)
+    : options_(options) {
+  options_.Validate();
+}
+
+double WarmupCosineLr::StepLr(int64_t step,
+                              int64_t total_steps,
+                              double epoch_lr) const {
+  const int64_t warmup = options_.warmup_steps;
+  if (step < warmup) {
+    return epoch_lr * static_cast<double>(step + 1) /
+           static_cast<double>(warmup);
+  }
+  const int64_t span = total_steps - warmup;
+  const double progress = span > 0
+                              ? std::clamp(static_cast<double>(step - warmup) /
+                                               static_cast<double>(span),
+                                           0.0,
+                                           1.0)
+                              : 1.0;
+  const double f = options_.final_factor;
+  return epoch_lr * (f + (1.0 - f) * 0.5 * (1.0 + std::cos(M_PI * progress)));
+}
+
 void EarlyStoppingOptions::Validate() const {
   if (patience < 1) {
     throw ConfigError(fmt::format(
@@ -206,6 +245,19 @@ PlateauOptions DecodePlateauOptions(const ConfigNode& node) {
   return options;
 }
 
+CosineOptions DecodeCosineOptions(const ConfigNode& node) {
+  ConfigReader reader(node);
+  CosineOptions options;
+  reader.Read("warmup_steps", &options.warmup_steps);
+  reader.Read("final_factor", &options.final_factor);
+  reader.Check("warmup_steps", options.warmup_steps >= 0, "warmup_steps >= 0");
+  reader.Check("final_factor",
+               options.final_factor >= 0 && options.final_factor <= 1,
+               "0 <= final_factor <= 1");
+  reader.Finish();
+  return options;
+}
+
 EarlyStoppingOptions DecodeEarlyStoppingOptions(const ConfigNode& node) {
   ConfigReader reader(node);
   EarlyStoppingOptions options;
@@ -229,6 +281,9 @@ void RegisterSchedulers() {
   Registry<LrScheduler>& registry = GetRegistry<LrScheduler>();
   registry.Register("plateau", [](const ConfigNode& node, BuildContext&) {
     return std::make_unique<ReduceLrOnPlateau>(DecodePlateauOptions(node));
+  });
+  registry.Register("cosine", [](const ConfigNode& node, BuildContext&) {
+    return std::make_unique<WarmupCosineLr>(DecodeCosineOptions(node));
   });
   registry.Register("none", [](const ConfigNode& node, BuildContext&) {
     ConfigReader reader(node);

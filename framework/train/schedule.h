@@ -1,8 +1,9 @@
 // Learning-rate schedules and early stopping, stepped once per epoch on the
-// validation loss (REFERENCE 2.4):
+// validation loss (REFERENCE 2.4), or per optimizer step:
 //
 //   ReduceLROnPlateau(mode min, factor 0.1, patience 3, threshold 1e-4 rel,
 //                     cooldown 0, min_lr 0)        configs/scheduler/plateau
+//   linear warm-up + cosine decay (per step)      configs/scheduler/cosine
 //   EarlyStopping(monitor val_loss, mode min, min_delta 0, patience 8)
 //                                                  train.early_stopping
 //
@@ -30,6 +31,16 @@ class LrScheduler {
   /// Consumes the epoch's metric; returns the learning rate for the next
   /// epoch given the current one.
   virtual double Step(double metric, double lr) = 0;
+  /// The learning rate of optimizer step `step` (0-based, counted over the
+  /// whole run) of `total_steps` planned, given the epoch's learning rate.
+  /// Schedules that act per step (warm-up, cosine) override it; the default
+  /// keeps the epoch's rate. A pure function of its arguments, so a resumed
+  /// run repeats the rates of an uninterrupted one.
+  virtual double StepLr(int64_t /*step*/,
+                        int64_t /*total_steps*/,
+                        double epoch_lr) const {
+    return epoch_lr;
+  }
   /// The full state as text (exact round trip through LoadState).
   virtual std::string SaveState() const = 0;
   /// Restores SaveState(); InternalError on malformed text.
@@ -83,6 +94,36 @@ class ReduceLrOnPlateau : public LrScheduler {
   int64_t last_epoch_ = 0;
 };
 
+/// Options of the warm-up + cosine schedule.
+struct CosineOptions {
+  int64_t warmup_steps = 500;  // linear ramp from lr / warmup_steps to lr
+  double final_factor = 0.01;  // lr at the last step = final_factor * lr
+  void Validate() const;       // ConfigError on violation
+};
+
+/// `name: cosine`: a linear warm-up over the first `warmup_steps` optimizer
+/// steps, then a half cosine from the optimizer's lr down to
+/// `final_factor * lr` at the run's last planned step (max_epochs x batches
+/// per epoch; Loshchilov & Hutter 2017, SGDR without restarts; Goyal et al.
+/// 2017 for the warm-up):
+///   s <  W:  lr_s = lr * (s + 1) / W
+///   s >= W:  lr_s = lr * (f + (1 - f) * (1 + cos(pi * (s - W) / (T - W))) / 2)
+/// The epoch-level rate stays the optimizer's lr (Step returns it as is).
+class WarmupCosineLr : public LrScheduler {
+ public:
+  explicit WarmupCosineLr(const CosineOptions& options = {});
+  double Step(double /*metric*/, double lr) override { return lr; }
+  double StepLr(int64_t step,
+                int64_t total_steps,
+                double epoch_lr) const override;
+  std::string SaveState() const override { return ""; }
+  void LoadState(std::string_view /*state*/) override {}
+  const CosineOptions& options() const { return options_; }
+
+ private:
+  CosineOptions options_;
+};
+
 /// Options of early stopping (Lightning EarlyStopping, mode min).
 struct EarlyStoppingOptions {
   bool enabled = true;
@@ -120,10 +161,11 @@ class EarlyStopping {
 
 /// Decoders (unknown keys are an error).
 PlateauOptions DecodePlateauOptions(const ConfigNode& node);
+CosineOptions DecodeCosineOptions(const ConfigNode& node);
 EarlyStoppingOptions DecodeEarlyStoppingOptions(const ConfigNode& node);
 
-/// Registers schedulers `plateau` and `none` and the `scheduler` config
-/// group.
+/// Registers schedulers `plateau`, `cosine` and `none` and the `scheduler`
+/// config group.
 void RegisterSchedulers();
 
 }  // namespace soma

@@ -276,6 +276,9 @@ void TrainerOptions::Validate() const {
   if (precision != "fp32" && precision != "bf16") {
     fail("precision", precision, "precision is fp32 or bf16");
   }
+  if (!(gradient_clip_val >= 0)) {
+    fail("gradient_clip_val", gradient_clip_val, "gradient_clip_val >= 0");
+  }
   early_stopping.Validate();
 }
 
@@ -293,6 +296,7 @@ TrainerOptions DecodeTrainerOptions(const ConfigNode& node) {
   reader.Read("progress", &options.progress);
   reader.Read("engine", &options.engine);
   reader.Read("precision", &options.precision);
+  reader.Read("gradient_clip_val", &options.gradient_clip_val);
   if (const ConfigNode* resume = reader.Child("resume");
       resume != nullptr && !resume->IsNull()) {
     if (resume->IsBool()) {
@@ -325,6 +329,9 @@ TrainerOptions DecodeTrainerOptions(const ConfigNode& node) {
   reader.Check("precision",
                options.precision == "fp32" || options.precision == "bf16",
                "precision is fp32 or bf16");
+  reader.Check("gradient_clip_val",
+               options.gradient_clip_val >= 0,
+               "gradient_clip_val >= 0");
   reader.Finish();
   return options;
 }
@@ -760,6 +767,7 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
 
   const int64_t num_labels = model_->num_labels();
   const int64_t frames_per_epoch = num_batches * options_.batch_size;
+  const int64_t total_steps = num_batches * options_.max_epochs;
   const int remaining = std::max(0, options_.max_epochs - state.epoch);
   ProgressBar progress(
       remaining * frames_per_epoch,
@@ -800,6 +808,10 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
         }
         torch::manual_seed(
             epoch_stream.Stream(static_cast<uint64_t>(b)).seed());
+        const double step_lr =
+            scheduler_->StepLr(state.step, total_steps, state.lr);
+        SetLearningRate(*optimizer_, step_lr);
+        row.lr = step_lr;  // metrics.csv: the rate of the epoch's last step
         const Tensors t = ToTensors(frames);
         // Forward and loss (the fast engine also computes the gradients).
         torch::Tensor loss;
@@ -824,11 +836,15 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
           progress.Finish();
           return finish(TrainSummary::Termination::kNonFiniteLoss, message);
         }
-        if (fast_ != nullptr) {
-          if (!FusedAdamStep(*optimizer_)) optimizer_->step();
-        } else {
+        if (fast_ == nullptr) {
           optimizer_->zero_grad();
           loss.backward();
+        }
+        if (options_.gradient_clip_val > 0) {
+          torch::nn::utils::clip_grad_norm_(model_->parameters(),
+                                            options_.gradient_clip_val);
+        }
+        if (fast_ == nullptr || !FusedAdamStep(*optimizer_)) {
           optimizer_->step();
         }
         ++state.step;

@@ -83,6 +83,10 @@ struct TrainerOptions {
   /// AMX-BF16; elsewhere fp32 with a logged reason). The torch engine is
   /// always fp32.
   std::string precision = "fp32";
+  /// Clip the global L2 norm of the gradients to this value before every
+  /// optimizer step (Lightning's `gradient_clip_val`, algorithm "norm");
+  /// 0 = off.
+  double gradient_clip_val = 0.0;
   uint64_t seed = 0;      // root seed (from the run, not the `train` group)
   void Validate() const;  // ConfigError on violation
 };

@@ -1,8 +1,9 @@
-// ReduceLROnPlateau and early stopping against hand-computed sequences
-// (PyTorch / Lightning semantics, REFERENCE 2.4), their state round trip, and
-// the labelling metrics (REFERENCE 4.2).
+// ReduceLROnPlateau, warm-up + cosine and early stopping against hand-computed
+// sequences (PyTorch / Lightning semantics, REFERENCE 2.4), their state round
+// trip, and the labelling metrics (REFERENCE 4.2).
 #include "framework/train/schedule.h"
 
+#include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
 #include "framework/train/metrics.h"
 
@@ -96,6 +97,49 @@ TEST(PlateauOptions, RejectsBadFactor) {
   PlateauOptions options;
   options.factor = 1.5;
   EXPECT_THROW(ReduceLrOnPlateau{options}, ConfigError);
+}
+
+TEST(WarmupCosineLr, RampsThenFollowsAHalfCosineToTheFinalFactor) {
+  CosineOptions options;
+  options.warmup_steps = 4;
+  options.final_factor = 0.1;
+  const WarmupCosineLr schedule(options);
+  const int64_t total = 24;
+  const double lr = 2e-3;
+  EXPECT_NEAR(schedule.StepLr(0, total, lr), lr / 4, kTol);
+  EXPECT_NEAR(schedule.StepLr(1, total, lr), lr / 2, kTol);
+  EXPECT_NEAR(schedule.StepLr(3, total, lr), lr, kTol);
+  EXPECT_NEAR(schedule.StepLr(4, total, lr), lr, kTol);  // cosine at 0
+  // Half way through the decay: the mean of lr and final_factor * lr.
+  EXPECT_NEAR(schedule.StepLr(14, total, lr), lr * 0.55, kTol);
+  EXPECT_NEAR(schedule.StepLr(total, total, lr), lr * 0.1, kTol);
+  EXPECT_NEAR(schedule.StepLr(total + 5, total, lr), lr * 0.1, kTol);
+  for (int64_t s = 4; s < total; ++s) {
+    EXPECT_LT(schedule.StepLr(s + 1, total, lr), schedule.StepLr(s, total, lr))
+        << "step " << s;
+  }
+  // Epoch ends leave the rate to the per-step schedule.
+  WarmupCosineLr stepped(options);
+  EXPECT_EQ(stepped.Step(1.0, lr), lr);
+  // No warm-up: the first step runs at the full rate.
+  EXPECT_NEAR(
+      WarmupCosineLr(CosineOptions{0, 0.0}).StepLr(0, 10, lr), lr, kTol);
+}
+
+TEST(WarmupCosineLr, RejectsBadOptions) {
+  EXPECT_THROW(WarmupCosineLr(CosineOptions{-1, 0.1}), ConfigError);
+  EXPECT_THROW(WarmupCosineLr(CosineOptions{10, 1.5}), ConfigError);
+  EXPECT_THROW(DecodeCosineOptions(ParseYaml("warmup: 3\n", "t")), ConfigError);
+  const CosineOptions decoded = DecodeCosineOptions(
+      ParseYaml("warmup_steps: 7\nfinal_factor: 0.5\n", "t"));
+  EXPECT_EQ(decoded.warmup_steps, 7);
+  EXPECT_EQ(decoded.final_factor, 0.5);
+}
+
+TEST(ConstantLr, KeepsTheRateAtEveryStep) {
+  ConstantLr constant;
+  EXPECT_EQ(constant.StepLr(5, 10, 0.25), 0.25);
+  EXPECT_EQ(constant.Step(1.0, 0.25), 0.25);
 }
 
 TEST(EarlyStopping, PatienceCountsEpochsWithoutImprovement) {

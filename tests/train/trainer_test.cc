@@ -13,6 +13,7 @@
 #include "framework/testing/testing.h"
 #include "framework/train/batch_source.h"
 #include "framework/train/optimizer.h"
+#include "framework/train/schedule.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -121,7 +122,8 @@ class TrainerTest : public ::testing::Test {
       const std::filesystem::path& dir,
       ConfigNode config = ModelConfig(),
       std::vector<std::string> labels = Labels(),
-      double lr = 3e-3) {
+      double lr = 3e-3,
+      std::unique_ptr<LrScheduler> scheduler = nullptr) {
     torch::manual_seed(7);
     Labeler model = BuildLabeler(config.at("model"),
                                  config.at("normalization"),
@@ -129,13 +131,15 @@ class TrainerTest : public ::testing::Test {
     AdamOptions adam;
     adam.lr = lr;
     ModelIdentity identity{config, labels, "seed: 99\n"};
-    return std::make_unique<Trainer>(options,
-                                     model,
-                                     std::make_shared<SomaLabelingLoss>(),
-                                     AdamSpec(adam),
-                                     std::make_unique<ReduceLrOnPlateau>(),
-                                     identity,
-                                     dir);
+    return std::make_unique<Trainer>(
+        options,
+        model,
+        std::make_shared<SomaLabelingLoss>(),
+        AdamSpec(adam),
+        scheduler != nullptr ? std::move(scheduler)
+                             : std::make_unique<ReduceLrOnPlateau>(),
+        identity,
+        dir);
   }
 
   std::unique_ptr<InMemoryBatchSource> train_;
@@ -401,6 +405,88 @@ TEST_F(TrainerTest, EnginesShareCheckpoints) {
   }
 }
 
+double GradientNorm(const Labeler& model) {
+  double sum = 0;
+  for (const torch::Tensor& p : model->parameters()) {
+    if (p.grad().defined()) sum += p.grad().square().sum().item<double>();
+  }
+  return std::sqrt(sum);
+}
+
+TEST_F(TrainerTest, GradientClippingBoundsTheNormOnBothEngines) {
+  constexpr double kClip = 0.05;
+  for (const std::string engine : {"fast", "torch"}) {
+    for (const double clip : {0.0, kClip}) {
+      TrainerOptions options = WithEngine(Options(1), engine);
+      options.gradient_clip_val = clip;
+      auto trainer =
+          MakeTrainer(options, root_ / fmt::format("{}_{}", engine, clip));
+      double max_norm = 0;
+      Trainer* raw = trainer.get();
+      trainer->set_callbacks(
+          Trainer::Callbacks{.on_batch_end = [&](const Trainer::BatchEvent&) {
+            // The gradients the step used stay in .grad() after it.
+            max_norm = std::max(max_norm, GradientNorm(raw->model()));
+          }});
+      trainer->Train(*train_, *val_);
+      if (clip > 0) {
+        EXPECT_LE(max_norm, clip * (1 + 1e-4)) << engine;
+        EXPECT_GT(max_norm, 0.5 * clip) << engine;
+      } else {
+        EXPECT_GT(max_norm, 10 * kClip) << engine << ": unclipped norms";
+      }
+    }
+  }
+}
+
+TEST_F(TrainerTest, CosineScheduleSetsEveryStepsRateAndResumes) {
+  CosineOptions cosine;
+  cosine.warmup_steps = 3;
+  cosine.final_factor = 0.1;
+  const double lr = 3e-3;
+  const auto full = root_ / "full";
+  std::vector<double> seen;
+  auto trainer = MakeTrainer(Options(3),
+                             full,
+                             ModelConfig(),
+                             Labels(),
+                             lr,
+                             std::make_unique<WarmupCosineLr>(cosine));
+  Trainer* raw = trainer.get();
+  trainer->set_callbacks(
+      Trainer::Callbacks{.on_batch_end = [&](const Trainer::BatchEvent&) {
+        seen.push_back(GetLearningRate(raw->optimizer()));
+      }});
+  const TrainSummary summary = trainer->Train(*train_, *val_);
+  const WarmupCosineLr schedule(cosine);
+  ASSERT_EQ(seen.size(), 12u);  // 3 epochs x 4 batches
+  for (size_t s = 0; s < seen.size(); ++s) {
+    EXPECT_DOUBLE_EQ(seen[s], schedule.StepLr(s, 12, lr)) << "step " << s;
+  }
+  EXPECT_DOUBLE_EQ(seen[2], lr);  // the warm-up's last step
+  EXPECT_DOUBLE_EQ(summary.history.back().lr, seen.back());
+
+  // Interrupted after one epoch: the resumed run repeats the same rates.
+  const auto split = root_ / "split";
+  MakeTrainer(Options(1),
+              split,
+              ModelConfig(),
+              Labels(),
+              lr,
+              std::make_unique<WarmupCosineLr>(cosine))
+      ->Train(*train_, *val_);
+  auto resumed = MakeTrainer(Options(3),
+                             split,
+                             ModelConfig(),
+                             Labels(),
+                             lr,
+                             std::make_unique<WarmupCosineLr>(cosine));
+  resumed->Train(*train_, *val_);
+  EXPECT_EQ(DeterministicColumns(full / "metrics.csv"),
+            DeterministicColumns(split / "metrics.csv"));
+  ExpectSameWeights(trainer->model(), resumed->model());
+}
+
 TEST(TrainerOptions, DecodeAndValidate) {
   const TrainerOptions options = DecodeTrainerOptions(
       ParseYaml("batch_size: 32\nmax_epochs: 4\nresume: false\n"
@@ -423,6 +509,12 @@ TEST(TrainerOptions, DecodeAndValidate) {
   EXPECT_EQ(DecodeTrainerOptions(ParseYaml("precision: bf16\n", "t")).precision,
             "bf16");
   EXPECT_THROW(DecodeTrainerOptions(ParseYaml("precision: fp16\n", "t")),
+               ConfigError);
+  EXPECT_EQ(options.gradient_clip_val, 0.0);
+  EXPECT_EQ(DecodeTrainerOptions(ParseYaml("gradient_clip_val: 1.5\n", "t"))
+                .gradient_clip_val,
+            1.5);
+  EXPECT_THROW(DecodeTrainerOptions(ParseYaml("gradient_clip_val: -1\n", "t")),
                ConfigError);
 }
 
