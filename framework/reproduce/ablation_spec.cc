@@ -155,6 +155,11 @@ AblationClaim ParseClaim(const ConfigNode& node,
     c.paper_gap = gap->AsDouble();
   }
   reader.Read("paper_note", &c.paper_note);
+  reader.Read("origin", &c.origin);
+  reader.Check(
+      "origin",
+      c.origin == "paper" || c.origin == "ours" || c.origin == "duplicate",
+      "paper, ours or duplicate");
   reader.Finish();
   return c;
 }

@@ -78,6 +78,11 @@ struct AblationClaim {
   /// for it; otherwise computed from the variants' paper values.
   std::optional<double> paper_gap;
   std::string paper_note;  // e.g. "read off Fig. C.1"
+  /// Whose claim it is, so that summaries count the paper's claims apart:
+  /// "paper" (one of the paper's statements), "ours" (a claim of ours, not
+  /// in the paper) or "duplicate" (a paper's claim checked a second time,
+  /// on another take, e.g. Table 5's HDM05 claims repeated on the CMU take).
+  std::string origin = "paper";
 };
 
 /// A difference from the paper's setup, printed in the report. Some hold

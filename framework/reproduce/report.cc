@@ -229,29 +229,93 @@ void WriteClaimsCsv(const AblationSpec& spec,
   std::ostringstream csv;
   csv << "table,claim,rule,kind,metric,better,better_test,worse,worse_test,"
          "tolerance,paper_gap,gap,gap_se,paired,verdict,within_noise,"
-         "paper_note\n";
+         "paper_note,origin\n";
   for (const ClaimOutcome& outcome : CheckClaims(spec, cells)) {
     const AblationClaim& c = *outcome.claim;
-    csv << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-                       spec.name,
-                       CsvField(c.text),
-                       CsvField(ClaimRule(c)),
-                       c.kind,
-                       c.metric,
-                       c.better,
-                       c.better_test,
-                       c.worse,
-                       c.worse_test,
-                       c.kind == "close" ? Fixed(c.tolerance) : "",
-                       Fixed(outcome.paper_gap),
-                       Fixed(outcome.gap),
-                       Fixed(outcome.gap_se),
-                       outcome.gap_se ? (outcome.paired ? "1" : "0") : "",
-                       outcome.verdict,
-                       outcome.gap ? (outcome.within_noise ? "1" : "0") : "",
-                       CsvField(c.paper_note));
+    csv << fmt::format(
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+        spec.name,
+        CsvField(c.text),
+        CsvField(ClaimRule(c)),
+        c.kind,
+        c.metric,
+        c.better,
+        c.better_test,
+        c.worse,
+        c.worse_test,
+        c.kind == "close" ? Fixed(c.tolerance) : "",
+        Fixed(outcome.paper_gap),
+        Fixed(outcome.gap),
+        Fixed(outcome.gap_se),
+        outcome.gap_se ? (outcome.paired ? "1" : "0") : "",
+        outcome.verdict,
+        outcome.gap ? (outcome.within_noise ? "1" : "0") : "",
+        CsvField(c.paper_note),
+        c.origin);
   }
   WriteFileAtomic(path, csv.str());
+}
+
+void WriteSeedsCsv(const AblationSpec& spec,
+                   const std::vector<CellResult>& cells,
+                   const std::filesystem::path& path) {
+  std::ostringstream csv;
+  csv << "table,variant,test,metric,seed,value,std_frames\n";
+  for (const AblationVariant& variant : spec.variants) {
+    for (const AblationTest& test : spec.tests) {
+      if (!variant.Evaluates(test.name)) continue;
+      for (const std::string& metric : ReproductionMetrics()) {
+        const CellResult* cell =
+            FindCell(cells, variant.name, test.name, metric);
+        if (cell == nullptr) continue;
+        for (size_t i = 0; i < cell->seed_means.size(); ++i) {
+          csv << fmt::format(
+              "{},{},{},{},{},{:.4f},{}\n",
+              spec.name,
+              variant.name,
+              test.name,
+              metric,
+              i < cell->seeds.size() ? std::to_string(cell->seeds[i]) : "",
+              cell->seed_means[i],
+              i < cell->seed_frame_stds.size()
+                  ? fmt::format("{:.4f}", cell->seed_frame_stds[i])
+                  : "");
+        }
+      }
+    }
+  }
+  WriteFileAtomic(path, csv.str());
+}
+
+ClaimCounts CountClaims(const std::vector<ClaimOutcome>& outcomes,
+                        const std::string& origin) {
+  ClaimCounts counts;
+  for (const ClaimOutcome& outcome : outcomes) {
+    if (outcome.claim->origin != origin) continue;
+    ++counts.claims;
+    counts.pass += outcome.verdict == "pass";
+    counts.fail += outcome.verdict == "fail";
+    counts.not_run += outcome.verdict == "not run";
+    counts.within_noise += outcome.gap && outcome.within_noise;
+  }
+  return counts;
+}
+
+std::string ClaimsSummary(const std::vector<ClaimOutcome>& outcomes) {
+  std::vector<std::string> parts;
+  for (const auto& [origin, name] :
+       {std::pair<std::string, std::string>{"paper", "of the paper's own"},
+        {"ours", "of ours (not in the paper)"},
+        {"duplicate", "paper's claims repeated on another take"}}) {
+    const ClaimCounts c = CountClaims(outcomes, origin);
+    if (c.claims == 0) continue;
+    std::string text =
+        fmt::format("{} {} ({} pass, {} fail", c.claims, name, c.pass, c.fail);
+    if (c.not_run > 0) text += fmt::format(", {} not run", c.not_run);
+    text += fmt::format("; {} within seed noise)", c.within_noise);
+    parts.push_back(text);
+  }
+  return fmt::format("{} claims: {}", outcomes.size(), fmt::join(parts, ", "));
 }
 
 void WriteResultsMarkdown(const AblationSpec& spec,
@@ -261,6 +325,15 @@ void WriteResultsMarkdown(const AblationSpec& spec,
   std::ostringstream md;
   const bool complete = context.models_done == context.models_planned;
   md << "# " << spec.title << "\n\n";
+  if (context.commit.size() > 6 &&
+      context.commit.compare(context.commit.size() - 6, 6, "-dirty") == 0) {
+    md << kDirtyTreeMark
+       << fmt::format(
+              " written from a checkout with uncommitted changes (commit "
+              "{}).** The code that made these numbers may be in no "
+              "commit; regenerate the report from a clean tree.\n\n",
+              context.commit);
+  }
   if (!complete) {
     md << fmt::format(
         "**PARTIAL: {} of {} trainings finished.** Cells marked \"not run\" "
@@ -338,10 +411,15 @@ void WriteResultsMarkdown(const AblationSpec& spec,
   }
 
   if (!spec.claims.empty()) {
+    const std::vector<ClaimOutcome> outcomes = CheckClaims(spec, cells);
     md << "\n## The paper's claims\n\n";
+    md << ClaimsSummary(outcomes)
+       << ". A verdict is \"within seed noise\" when the claim's boundary "
+          "(0, or ± the tolerance of a close claim) is under 2 standard "
+          "errors from our gap.\n\n";
     md << "| claim | test, metric | paper gap | our gap | verdict |\n";
     md << "|---|---|---|---|---|\n";
-    for (const ClaimOutcome& outcome : CheckClaims(spec, cells)) {
+    for (const ClaimOutcome& outcome : outcomes) {
       const AblationClaim& c = *outcome.claim;
       std::string paper = outcome.paper_gap ? Signed(*outcome.paper_gap) : "";
       if (!c.paper_note.empty()) {
@@ -360,8 +438,11 @@ void WriteResultsMarkdown(const AblationSpec& spec,
                                     ? spec.Test(c.test).label
                                     : spec.Test(c.better_test).label + " vs " +
                                           spec.Test(c.worse_test).label;
+      std::string text = c.text;
+      if (c.origin == "ours") text += " [ours]";
+      if (c.origin == "duplicate") text += " [repeated on another take]";
       md << fmt::format("| {} ({}) | {}, {} | {} | {} | {} |\n",
-                        MarkdownCell(c.text),
+                        MarkdownCell(text),
                         MarkdownCell(ClaimRule(c)),
                         MarkdownCell(tests),
                         c.metric,
@@ -380,7 +461,10 @@ void WriteResultsMarkdown(const AblationSpec& spec,
   }
   md << "\nEvery number above comes from the runs under the reproduction's "
         "root directory (`jobs.yaml` there lists each training with its "
-        "overrides, status and metrics; `commands.sh` every command). The "
+        "overrides, status and metrics; `commands.sh` every command); the "
+        "per-seed values behind each mean and ± are in `"
+     << spec.name
+     << "_seeds.csv` beside this report. The "
         "paper's numbers are typed in from the paper in `ablations/"
      << spec.name << ".yaml` and appear only in the paper columns.\n";
   WriteFileAtomic(path, md.str());

@@ -9,7 +9,11 @@
 //    seeds_planned, mean, std_seeds, std_frames, paper, paper_std, status
 //    (done | partial | not run | skipped), note. Values in percent; empty
 //    cells where there is no value.
-//  - `<name>.md`: the header, the table, the claims, the differences.
+//  - `<name>.md`: the header, the table, the claims, the differences. A
+//    report written from a checkout with uncommitted changes (a commit
+//    "<sha>-dirty") says so in its first lines (kDirtyTreeMark).
+//  - `<name>_seeds.csv`: one row per (variant, test, metric, training seed),
+//    the per-seed values behind every mean and ± of `<name>.csv`.
 #pragma once
 
 #include "framework/reproduce/ablation_spec.h"
@@ -59,6 +63,20 @@ struct ClaimOutcome {
   bool within_noise = false;
 };
 
+/// The first words of the line a report written from a dirty tree carries
+/// under its title; tests/reproduce/results_test.cc fails on a committed
+/// report that names a "-dirty" commit without it.
+inline constexpr const char* kDirtyTreeMark = "**DIRTY TREE:";
+
+/// Claims counted by whose they are (AblationClaim::origin) and verdict.
+struct ClaimCounts {
+  int claims = 0;
+  int pass = 0;
+  int fail = 0;
+  int not_run = 0;
+  int within_noise = 0;  // verdicts (pass or fail) within seed noise
+};
+
 /// Checks every claim of `spec` on `cells` (greater: gap > 0; close: |gap| <=
 /// tolerance). A claim whose cells have no finished seed is "not run". The
 /// verdict is about the means; `within_noise` flags a verdict whose boundary
@@ -66,10 +84,20 @@ struct ClaimOutcome {
 std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
                                       const std::vector<CellResult>& cells);
 
+/// `outcomes` counted for one origin ("paper", "ours", "duplicate").
+ClaimCounts CountClaims(const std::vector<ClaimOutcome>& outcomes,
+                        const std::string& origin);
+
+/// One sentence: "13 claims: 6 of the paper's own (4 pass, 2 fail; 3 within
+/// seed noise), 2 of ours (2 pass, 0 fail; 0 within seed noise), 5 paper's
+/// claims repeated on another take (...)". Origins without claims are left
+/// out.
+std::string ClaimsSummary(const std::vector<ClaimOutcome>& outcomes);
+
 /// What the header states.
 struct ReportContext {
   std::string command;  // the exact command line
-  std::string commit;   // git SHA (+ "-dirty")
+  std::string commit;   // git SHA (+ "-dirty": the report says so on top)
   std::string date;
   std::string machine;  // where the report was written: host, CPU, threads
   /// Where the trained models ran (TrainingMachines): "vm, Intel(R) Xeon(R)
@@ -93,11 +121,20 @@ std::string ClaimRule(const AblationClaim& claim);
 /// One row per claim of `spec` (results/<name>_claims.csv): table, claim,
 /// rule, kind, metric, better, better_test, worse, worse_test, tolerance
 /// (close claims), paper_gap, gap, gap_se, paired (1/0), verdict
-/// (pass|fail|not run), within_noise (1/0), paper_note. Gaps are in points;
+/// (pass|fail|not run), within_noise (1/0, for greater and close claims
+/// alike), paper_note, origin (paper|ours|duplicate). Gaps are in points;
 /// empty cells are unknown (no paper gap, not run, fewer than two seeds).
 void WriteClaimsCsv(const AblationSpec& spec,
                     const std::vector<CellResult>& cells,
                     const std::filesystem::path& path);
+
+/// One row per finished (variant, test, metric, seed)
+/// (results/<name>_seeds.csv): table, variant, test, metric, seed, value
+/// (the per-frame mean over the take, %), std_frames (%). The seed column is
+/// empty where the cell does not know its seeds.
+void WriteSeedsCsv(const AblationSpec& spec,
+                   const std::vector<CellResult>& cells,
+                   const std::filesystem::path& path);
 
 void WriteResultsMarkdown(const AblationSpec& spec,
                           const std::vector<CellResult>& cells,

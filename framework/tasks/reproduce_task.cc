@@ -99,6 +99,7 @@ class ReproduceTask : public Task {
       const fs::path results = options_.results_dir;
       CreateDirectories(results);
       WriteResultsCsv(spec, cells, results / (spec.name + ".csv"));
+      WriteSeedsCsv(spec, cells, results / (spec.name + "_seeds.csv"));
       WriteResultsMarkdown(spec, cells, now, results / (spec.name + ".md"));
       if (!spec.claims.empty()) {
         WriteClaimsCsv(spec, cells, results / (spec.name + "_claims.csv"));

@@ -106,6 +106,9 @@ TEST(ReproduceTask, RunsTrainsEvaluatesAndResumes) {
   EXPECT_THAT(ReadFile(dir / "results/mini_claims.csv"),
               HasSubstr("mini,Sinkhorn beats Log-Softmax,base − lsm > 0,"
                         "greater,acc,base,short,lsm,short,,"));
+  // The per-seed values behind each mean: 2 seeds of base on the one test.
+  EXPECT_THAT(ReadFile(dir / "results/mini_seeds.csv"),
+              HasSubstr("mini,base,short,acc,1,"));
   const fs::path ledger_dir = LedgerDir(dir / "root", "mini");
   const Ledger ledger = Ledger::Load(ledger_dir);
   ASSERT_EQ(ledger.entries().size(), 4u);

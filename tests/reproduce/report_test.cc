@@ -1,6 +1,7 @@
 #include "framework/reproduce/report.h"
 
 #include "framework/config/yaml_io.h"
+#include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/testing/testing.h"
 
@@ -41,7 +42,7 @@ claims:
   - {text: "robust", test: t0, worse_test: t5, kind: close, tolerance: 2.0,
      better: base, worse: base}
   - {text: "todo beats weak", test: t0, better: todo, worse: weak,
-     paper_gap: 1.0, paper_note: "Fig. 9"}
+     paper_gap: 1.0, paper_note: "Fig. 9", origin: ours}
 )",
                                      "demo.yaml"),
                            "demo.yaml");
@@ -174,18 +175,81 @@ TEST(ReportTest, ClaimsCsvHasOneRowPerClaimWithItsVerdict) {
   EXPECT_EQ(header,
             "table,claim,rule,kind,metric,better,better_test,worse,worse_test,"
             "tolerance,paper_gap,gap,gap_se,paired,verdict,within_noise,"
-            "paper_note");
+            "paper_note,origin");
   ASSERT_EQ(rows.size(), 4u);
   EXPECT_EQ(rows[0],
             "demo,base beats weak,base − weak > 0,greater,acc,base,t0,weak,t0,,"
-            "8.00,7.00,1.15,0,pass,0,");
+            "8.00,7.00,1.15,0,pass,0,,paper");
   EXPECT_EQ(rows[2],
             "demo,robust,|base@t0 − base@t5| ≤ 2.0,close,acc,base,t0,base,t5,"
-            "2.00,1.00,1.33,0.17,1,pass,0,");
+            "2.00,1.00,1.33,0.17,1,pass,0,,paper");
   // Not run: no gap, no s.e., no noise flag; the paper's gap and note stay.
   EXPECT_EQ(rows[3],
             "demo,todo beats weak,todo − weak > 0,greater,acc,todo,t0,weak,t0,,"
-            "1.00,,,,not run,,Fig. 9");
+            "1.00,,,,not run,,Fig. 9,ours");
+}
+
+TEST(ReportTest, ClaimsAreCountedByWhoseTheyAre) {
+  std::vector<CellResult> cells = Cells();
+  const std::vector<ClaimOutcome> outcomes = CheckClaims(Spec(), cells);
+  const ClaimCounts paper = CountClaims(outcomes, "paper");
+  EXPECT_EQ(paper.claims, 3);
+  EXPECT_EQ(paper.pass, 2);
+  EXPECT_EQ(paper.fail, 1);
+  EXPECT_EQ(CountClaims(outcomes, "ours").not_run, 1);
+  EXPECT_EQ(CountClaims(outcomes, "duplicate").claims, 0);
+  EXPECT_EQ(ClaimsSummary(outcomes),
+            "4 claims: 3 of the paper's own (2 pass, 1 fail; 0 within seed "
+            "noise), 1 of ours (not in the paper) (0 pass, 0 fail, 1 not "
+            "run; 0 within seed noise)");
+  const auto dir = testing::CreateTestDir();
+  WriteResultsMarkdown(Spec(), cells, ReportContext{}, dir / "demo.md");
+  const std::string md = ReadFile(dir / "demo.md");
+  EXPECT_THAT(md, HasSubstr(ClaimsSummary(outcomes)));
+  EXPECT_THAT(md, HasSubstr("| todo beats weak [ours] (todo − weak > 0)"));
+}
+
+TEST(ReportTest, AnUnknownClaimOriginIsRejected) {
+  EXPECT_THROW(ParseAblationSpec(ParseYaml(R"(
+name: x
+title: x
+tests: {t: {label: t, take: a.c3d, setting: OC_00_G_00_BT_00}}
+variants: [{name: a}, {name: b}]
+claims: [{text: c, test: t, better: a, worse: b, origin: mine}]
+)",
+                                           "x.yaml"),
+                                 "x.yaml"),
+               ConfigError);
+}
+
+TEST(ReportTest, SeedsCsvHasEveryFinishedSeed) {
+  const std::vector<CellResult> cells = Cells();
+  const auto dir = testing::CreateTestDir();
+  WriteSeedsCsv(Spec(), cells, dir / "demo_seeds.csv");
+  std::string header;
+  const std::vector<std::string> rows =
+      CsvRows(dir / "demo_seeds.csv", &header);
+  EXPECT_EQ(header, "table,variant,test,metric,seed,value,std_frames");
+  ASSERT_GE(rows.size(), 3u);
+  EXPECT_EQ(rows[0], "demo,base,t0,acc,0,96.0000,4.0000");
+  EXPECT_EQ(rows[2], "demo,base,t0,acc,2,98.0000,6.0000");
+  // Every row of the table's cells, one per seed.
+  size_t expected = 0;
+  for (const CellResult& cell : cells) expected += cell.seed_means.size();
+  EXPECT_EQ(rows.size(), expected);
+}
+
+TEST(ReportTest, AReportFromADirtyTreeSaysSoOnTop) {
+  const auto dir = testing::CreateTestDir();
+  ReportContext context;
+  context.commit = "abc123def456-dirty";
+  WriteResultsMarkdown(Spec(), Cells(), context, dir / "dirty.md");
+  const std::string md = ReadFile(dir / "dirty.md");
+  EXPECT_EQ(md.find(kDirtyTreeMark), md.find("\n\n") + 2);
+  EXPECT_THAT(md, HasSubstr("(commit abc123def456-dirty)"));
+  context.commit = "abc123def456";
+  WriteResultsMarkdown(Spec(), Cells(), context, dir / "clean.md");
+  EXPECT_THAT(ReadFile(dir / "clean.md"), Not(HasSubstr(kDirtyTreeMark)));
 }
 
 TEST(ReportTest, CsvHasOneRowPerVariantTestAndMetricWithStatus) {
