@@ -736,6 +736,10 @@ def load_claims() -> pd.DataFrame | None:
         df[col] = pd.to_numeric(df[col].replace("", np.nan), errors="coerce")
     df["paired"] = df["paired"] == "1"
     df["within_noise"] = df["within_noise"] == "1"
+    # Whose claim: paper (the paper's own), ours, duplicate (a paper's claim repeated on another take).
+    if "origin" not in df.columns:
+        df["origin"] = "paper"
+    df["origin"] = df["origin"].replace("", "paper")
     print(f"{len(paths)} claims files, {len(df)} claims: "
           + ", ".join(f"{k} {v}" for k, v in df["verdict"].value_counts().items())
           + f"; {int(df['within_noise'].sum())} within seed noise")
@@ -743,16 +747,20 @@ def load_claims() -> pd.DataFrame | None:
 
 
 def claims_counts(df: pd.DataFrame) -> pd.DataFrame:
-    """Per table: how many claims pass, fail or are not run, and how many verdicts are within seed noise."""
+    """Per table and origin (the paper's own claims, ours, the paper's repeated on another take): how many
+    claims pass, fail or are not run, and how many verdicts are within seed noise."""
     rows = []
-    for table, g in df.groupby("table", sort=False):
-        rows.append({"table": table, "claims": len(g), "pass": int((g["verdict"] == "pass").sum()),
+    for (table, origin), g in df.groupby(["table", "origin"], sort=False):
+        rows.append({"table": table, "origin": origin, "claims": len(g),
+                     "pass": int((g["verdict"] == "pass").sum()),
                      "fail": int((g["verdict"] == "fail").sum()),
                      "not run": int((g["verdict"] == "not run").sum()),
                      "within seed noise": int(g["within_noise"].sum())})
     out = pd.DataFrame(rows)
-    total = {"table": "all", **{c: int(out[c].sum()) for c in out.columns if c != "table"}}
-    return pd.concat([out, pd.DataFrame([total])], ignore_index=True).set_index("table")
+    numeric = [c for c in out.columns if c not in ("table", "origin")]
+    totals = [{"table": "all", "origin": origin, **{c: int(g[c].sum()) for c in numeric}}
+              for origin, g in out.groupby("origin", sort=False)]
+    return pd.concat([out, pd.DataFrame(totals)], ignore_index=True).set_index(["table", "origin"])
 
 
 def claims_summary(df: pd.DataFrame) -> pd.DataFrame:
@@ -799,7 +807,8 @@ def plot_claims(df: pd.DataFrame):
             if not pd.isna(r["gap_se"]):
                 ax.errorbar(r["gap"], i, xerr=2 * r["gap_se"], fmt="none", ecolor=color, capsize=3, lw=1.2)
             ax.plot(r["gap"], i, "o", ms=7, mec=color, mew=1.6, mfc="white" if r["within_noise"] else color)
-        labels.append(f"{r['table']}: {_shorten(r['claim'])}")
+        tag = {"ours": " [ours]", "duplicate": " [repeat]"}.get(r["origin"], "")
+        labels.append(f"{r['table']}: {_shorten(r['claim'])}{tag}")
     ax.axvline(0, color="black", lw=0.8)
     ax.set_xlim(lo, hi)
     ax.set_ylim(n - 0.5, -0.5)
@@ -817,9 +826,12 @@ def plot_claims(df: pd.DataFrame):
         Line2D([], [], marker="x", ls="none", color="dimgray", label="the paper's gap"),
         Patch(color=PASS_COLOR, alpha=0.12, label="where the claim passes"),
     ], fontsize=8, loc="lower left", bbox_to_anchor=(0, 1.0), ncol=5, frameon=False)
-    counts = df["verdict"].value_counts()
-    fig.suptitle(f"The paper's claims at our scale: {counts.get('pass', 0)} pass, {counts.get('fail', 0)} fail, "
-                 f"{counts.get('not run', 0)} not run; within seed noise: {int(df['within_noise'].sum())}")
+    own = df[df["origin"] == "paper"]
+    counts = own["verdict"].value_counts()
+    others = len(df) - len(own)
+    fig.suptitle(f"The paper's own claims at our scale: {counts.get('pass', 0)} pass, {counts.get('fail', 0)} fail, "
+                 f"{counts.get('not run', 0)} not run; within seed noise: {int(own['within_noise'].sum())}"
+                 + (f" (plus {others} of ours or repeated on another take)" if others else ""))
     return fig
 
 
