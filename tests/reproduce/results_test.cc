@@ -1,0 +1,301 @@
+// The committed results/: reports written from a dirty tree say so, the
+// claims CSVs agree with the specs on whose each claim is, and the headline
+// numbers that README.md and results/README.md quote are the ones in the
+// committed report CSVs (so a regenerated report cannot leave a stale quote
+// behind). Reads files only; fast.
+#include "framework/core/file.h"
+#include "framework/reproduce/ablation_spec.h"
+#include "framework/reproduce/report.h"
+#include "framework/testing/testing.h"
+
+#include <fmt/format.h>
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <map>
+#include <regex>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace soma {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+
+/// One CSV line split into fields ("..." quoting with "" escapes).
+std::vector<std::string> SplitCsvLine(const std::string& line) {
+  std::vector<std::string> fields(1);
+  bool quoted = false;
+  for (size_t i = 0; i < line.size(); ++i) {
+    const char c = line[i];
+    if (quoted) {
+      if (c == '"' && i + 1 < line.size() && line[i + 1] == '"') {
+        fields.back() += '"';
+        ++i;
+      } else if (c == '"') {
+        quoted = false;
+      } else {
+        fields.back() += c;
+      }
+    } else if (c == '"') {
+      quoted = true;
+    } else if (c == ',') {
+      fields.emplace_back();
+    } else {
+      fields.back() += c;
+    }
+  }
+  return fields;
+}
+
+/// The rows of a CSV file as column -> value maps.
+std::vector<std::map<std::string, std::string>> ReadCsv(const fs::path& path) {
+  std::istringstream in(ReadFile(path));
+  std::string line;
+  std::getline(in, line);
+  const std::vector<std::string> header = SplitCsvLine(line);
+  std::vector<std::map<std::string, std::string>> rows;
+  while (std::getline(in, line)) {
+    if (line.empty()) continue;
+    const std::vector<std::string> fields = SplitCsvLine(line);
+    EXPECT_EQ(fields.size(), header.size()) << path << ": " << line;
+    std::map<std::string, std::string> row;
+    for (size_t i = 0; i < header.size() && i < fields.size(); ++i) {
+      row[header[i]] = fields[i];
+    }
+    rows.push_back(std::move(row));
+  }
+  return rows;
+}
+
+std::vector<fs::path> Files(const fs::path& dir, const std::string& suffix) {
+  std::vector<fs::path> files;
+  for (const auto& entry : fs::directory_iterator(dir)) {
+    const std::string name = entry.path().filename().string();
+    if (name.size() > suffix.size() &&
+        name.compare(name.size() - suffix.size(), suffix.size(), suffix) == 0) {
+      files.push_back(entry.path());
+    }
+  }
+  return files;
+}
+
+const std::vector<fs::path>& ResultsDirs() {
+  static const std::vector<fs::path> kDirs = {
+      testing::SourceDir() / "results",
+      testing::SourceDir() / "results/hdm05_layout"};
+  return kDirs;
+}
+
+/// A regex matching `value` (read from a CSV with 2 decimals) written with
+/// `decimals`: both roundings where the CSV's own rounding leaves a tie
+/// (6.85 may be 6.849 or 6.851, so "6.8" and "6.9" both match).
+std::string Number(double value, int decimals) {
+  const double step = std::pow(10.0, -decimals);
+  std::vector<std::string> texts;
+  for (const double v : {value - 0.0051, value, value + 0.0051}) {
+    const std::string text = fmt::format("{:.{}f}", v, decimals);
+    if (std::abs(std::stod(text) - value) <= step / 2 + 0.0051 &&
+        std::find(texts.begin(), texts.end(), text) == texts.end()) {
+      texts.push_back(text);
+    }
+  }
+  std::string pattern = "(?:";
+  for (size_t i = 0; i < texts.size(); ++i) {
+    pattern += (i ? "|" : "") +
+               std::regex_replace(texts[i], std::regex(R"(\.)"), R"(\.)");
+  }
+  return pattern + ")";
+}
+
+/// A regex for "mean ± std" of one cell of a report CSV, with `decimals`.
+std::string Cell(const std::string& csv,
+                 const std::string& variant,
+                 const std::string& test,
+                 const std::string& metric = "acc",
+                 int decimals = 1,
+                 bool with_std = true) {
+  for (const auto& row : ReadCsv(testing::SourceDir() / csv)) {
+    if (row.at("variant") != variant || row.at("test") != test ||
+        row.at("metric") != metric) {
+      continue;
+    }
+    std::string text = Number(std::stod(row.at("mean")), decimals);
+    if (with_std) {
+      text += " ± " + Number(std::stod(row.at("std_seeds")), decimals);
+    }
+    return text;
+  }
+  ADD_FAILURE() << csv << ": no cell " << variant << "/" << test << "/"
+                << metric;
+  return "";
+}
+
+/// The string holds a match of the regex `pattern`: a quoted number
+/// differs from its report CSV when it does not.
+/// Line breaks and runs of spaces in both count as one space.
+MATCHER_P(MatchesSomewhere, pattern, "has a match for /" + pattern + "/") {
+  const std::regex space(R"(\s+)");
+  return std::regex_search(
+      std::regex_replace(std::string(arg), space, " "),
+      std::regex(std::regex_replace(std::string(pattern), space, " ")));
+}
+
+std::string Readme() { return ReadFile(testing::SourceDir() / "README.md"); }
+std::string ResultsReadme() {
+  return ReadFile(testing::SourceDir() / "results/README.md");
+}
+
+TEST(ResultsTest, AReportFromADirtyTreeCarriesTheMark) {
+  const std::regex dirty(R"(\| commit \| [0-9a-f]+-dirty \|)");
+  for (const fs::path& dir : ResultsDirs()) {
+    for (const fs::path& md : Files(dir, ".md")) {
+      if (md.filename() == "README.md") continue;
+      const std::string text = ReadFile(md);
+      if (!std::regex_search(text, dirty)) continue;
+      EXPECT_THAT(text, HasSubstr(kDirtyTreeMark))
+          << md << " names a -dirty commit but does not say so on top";
+    }
+  }
+}
+
+TEST(ResultsTest, ClaimsCsvsAgreeWithTheSpecsOnWhoseEachClaimIs) {
+  const fs::path specs = testing::SourceDir() / "ablations";
+  for (const fs::path& dir : ResultsDirs()) {
+    for (const fs::path& csv : Files(dir, "_claims.csv")) {
+      for (const auto& row : ReadCsv(csv)) {
+        const AblationSpec spec = LoadAblationSpec(row.at("table"), specs);
+        bool found = false;
+        for (const AblationClaim& claim : spec.claims) {
+          if (claim.text != row.at("claim")) continue;
+          found = true;
+          EXPECT_EQ(row.at("origin"), claim.origin)
+              << csv << ": " << claim.text;
+        }
+        EXPECT_TRUE(found) << csv << ": '" << row.at("claim")
+                           << "' is not a claim of ablations/"
+                           << row.at("table") << ".yaml";
+      }
+    }
+  }
+}
+
+/// "26 of the paper's own claims, 17 pass, 9 fail, 14 of those verdicts
+/// within seed noise", counted from the claims CSVs of `dir`.
+std::string OwnClaimsSentence(const fs::path& dir) {
+  int claims = 0, pass = 0, fail = 0, noise = 0;
+  for (const fs::path& csv : Files(dir, "_claims.csv")) {
+    for (const auto& row : ReadCsv(csv)) {
+      if (row.at("origin") != "paper") continue;
+      ++claims;
+      pass += row.at("verdict") == "pass";
+      fail += row.at("verdict") == "fail";
+      noise += row.at("within_noise") == "1";
+    }
+  }
+  return fmt::format(
+      "{} of the paper's own claims, {} pass, {} fail, {} of those verdicts "
+      "within seed noise",
+      claims,
+      pass,
+      fail,
+      noise);
+}
+
+TEST(ResultsTest, ResultsReadmeCountsTheClaimsOfTheCommittedCsvs) {
+  const std::string readme = ResultsReadme();
+  for (const fs::path& dir : ResultsDirs()) {
+    EXPECT_THAT(readme, HasSubstr(OwnClaimsSentence(dir))) << dir;
+  }
+}
+
+TEST(ResultsTest, ReadmeQuotesTable5AsItsReportsSayIt) {
+  const std::string readme = Readme();
+  const std::string t5 = "results/table5.csv";
+  EXPECT_THAT(readme,
+              MatchesSomewhere(Cell(t5, "target_layout", "hdm05") +
+                               "% on the HDM05 take\nagainst " +
+                               Cell(t5, "base", "hdm05") + "% with cmu41"));
+  EXPECT_THAT(readme,
+              MatchesSomewhere(Cell(t5, "target_layout", "cmu") + "% against " +
+                               Cell(t5, "base", "cmu") + "% on the CMU take"));
+  // The Intel-trained retraining of the same command.
+  EXPECT_THAT(readme,
+              MatchesSomewhere(
+                  "gives " +
+                  Cell("results/hdm05_layout/fig_c1.csv", "layers_4", "hdm05") +
+                  "% on the HDM05 take"));
+  const std::string results = ResultsReadme();
+  EXPECT_THAT(results,
+              MatchesSomewhere(Cell(t5, "target_layout", "hdm05") +
+                               "% on the HDM05 take against " +
+                               Cell(t5, "base", "hdm05") + "% for the base"));
+  EXPECT_THAT(
+      results,
+      MatchesSomewhere(
+          "Intel machine gives " +
+          Cell("results/hdm05_layout/fig_c1.csv", "layers_4", "hdm05")));
+}
+
+TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
+  const std::string readme = ResultsReadme();
+  for (const std::string dir : {"results/", "results/hdm05_layout/"}) {
+    const std::string c1 = dir + "fig_c1.csv";
+    EXPECT_THAT(
+        readme,
+        MatchesSomewhere(Cell(c1, "layers_1", "hdm05") + "% with 1 layer,\n" +
+                         Cell(c1, "layers_2", "hdm05") + "% with 2, " +
+                         Cell(c1, "layers_4", "hdm05") + "% with 4"))
+        << c1;
+    EXPECT_THAT(readme,
+                MatchesSomewhere(Cell(c1, "layers_8", "hdm05") + "% with 8"))
+        << c1;
+  }
+  const std::string c2 = "results/fig_c2.csv";
+  EXPECT_THAT(readme,
+              MatchesSomewhere(Cell(c2, "iters_1", "hdm05") + ", " +
+                               Cell(c2, "iters_5", "hdm05") + ",\n" +
+                               Cell(c2, "iters_15", "hdm05") + " and " +
+                               Cell(c2, "iters_35", "hdm05") + "%"));
+  const std::string t2 = "results/table2.csv";
+  EXPECT_THAT(readme,
+              MatchesSomewhere(
+                  "from " + Cell(t2, "base", "occ0", "acc", 1, false) +
+                  "% at 0 occluded markers to " +
+                  Cell(t2, "base", "occ5", "acc", 1, false) + "% at 5 and " +
+                  Cell(t2, "base", "occ5_g", "acc", 1, false) + "%"));
+  const std::string t3 = "results/table3.csv";
+  EXPECT_THAT(
+      readme,
+      MatchesSomewhere(
+          "lifts HDM05 from " +
+          Cell(t3, "base", "hdm05_frame", "acc", 1, false) + "% to " +
+          Cell(t3, "base", "hdm05_tracklet", "acc", 1, false) +
+          "% and CMU from " + Cell(t3, "base", "cmu_frame", "acc", 1, false) +
+          "% to " + Cell(t3, "base", "cmu_tracklet", "acc", 1, false)));
+}
+
+TEST(ResultsTest, ReadmeQuotesTheRealMarkerRunAsItsCsvSaysIt) {
+  std::map<std::string, std::string> acc;  // take/mode -> "mean ± std"
+  for (const auto& row :
+       ReadCsv(testing::SourceDir() / "results/real_markers_cpu.csv")) {
+    if (row.at("setting") != "OC_05_G_03_BT_00") continue;
+    acc[row.at("take") + "/" + row.at("mode")] =
+        Number(100 * std::stod(row.at("acc_mean")), 1) + " ± " +
+        Number(100 * std::stod(row.at("acc_std")), 1);
+  }
+  EXPECT_THAT(
+      Readme(),
+      MatchesSomewhere("HDM05 " + acc["HDM_mm_01-02_03_120/per-frame"] +
+                       "% per frame, " + acc["HDM_mm_01-02_03_120/tracklet"] +
+                       "% in\ntracklet mode; CMU 01_01 " +
+                       acc["cmu_01_01/per-frame"] + "% per frame"));
+}
+
+}  // namespace
+}  // namespace soma
