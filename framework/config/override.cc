@@ -545,6 +545,176 @@ struct FunctionArg {
   Parsed value;
 };
 
+// ---------------------------------------------------------------------------
+// Hydra 1.3's FloatRange: Python decimal.Decimal built from each float's exact
+// binary value, accumulated (`start += step`) in the default context (28
+// significant digits, ROUND_HALF_EVEN), each value converted back with float().
+// This is what makes range(0,10,3.3) end in 9.9 (not 9.899999999999999) and
+// range(0.1,1,0.1) contain 0.30000000000000004, exactly as Hydra does.
+
+constexpr size_t kDecimalPrecision = 28;
+
+struct Decimal {
+  bool negative = false;
+  std::string digits;  // coefficient, most significant first; empty for zero
+  int64_t exponent = 0;
+};
+
+void MultiplySmall(std::string* digits, int factor) {
+  int carry = 0;
+  for (size_t i = digits->size(); i-- > 0;) {
+    const int v = ((*digits)[i] - '0') * factor + carry;
+    (*digits)[i] = static_cast<char>('0' + v % 10);
+    carry = v / 10;
+  }
+  while (carry > 0) {
+    digits->insert(digits->begin(), static_cast<char>('0' + carry % 10));
+    carry /= 10;
+  }
+}
+
+void Normalize(Decimal* d) {
+  const size_t first = d->digits.find_first_not_of('0');
+  if (first == std::string::npos) {
+    d->digits.clear();
+    d->exponent = 0;
+    return;
+  }
+  d->digits.erase(0, first);
+  const size_t last = d->digits.find_last_not_of('0');
+  d->exponent += static_cast<int64_t>(d->digits.size() - last - 1);
+  d->digits.erase(last + 1);
+}
+
+Decimal DecimalFromInt(int64_t value) {
+  Decimal d;
+  d.negative = value < 0;
+  const uint64_t magnitude = d.negative ? 0 - static_cast<uint64_t>(value)
+                                        : static_cast<uint64_t>(value);
+  d.digits = std::to_string(magnitude);
+  Normalize(&d);
+  return d;
+}
+
+/// decimal.Decimal(float): the exact value of the double (finite only).
+Decimal DecimalFromDouble(double value) {
+  Decimal d;
+  d.negative = std::signbit(value);
+  int exp2 = 0;
+  const double fraction = std::frexp(std::fabs(value), &exp2);
+  const uint64_t mantissa =
+      static_cast<uint64_t>(std::ldexp(fraction, 53));  // exact
+  exp2 -= 53;
+  d.digits = std::to_string(mantissa);
+  if (exp2 >= 0) {
+    for (int i = 0; i < exp2; ++i) MultiplySmall(&d.digits, 2);
+  } else {
+    // m * 2^-k == m * 5^k * 10^-k
+    for (int i = 0; i < -exp2; ++i) MultiplySmall(&d.digits, 5);
+    d.exponent = exp2;
+  }
+  Normalize(&d);
+  return d;
+}
+
+Decimal DecimalFromNode(const ConfigNode& node) {
+  return node.IsInt() ? DecimalFromInt(node.AsInt())
+                      : DecimalFromDouble(node.AsDouble());
+}
+
+/// Compares two digit strings without leading zeros.
+int CompareMagnitude(const std::string& a, const std::string& b) {
+  if (a.size() != b.size()) return a.size() < b.size() ? -1 : 1;
+  const int c = a.compare(b);
+  return c < 0 ? -1 : (c > 0 ? 1 : 0);
+}
+
+std::string AddMagnitude(const std::string& a, const std::string& b) {
+  std::string out;
+  int carry = 0;
+  for (size_t i = 0; i < std::max(a.size(), b.size()) || carry > 0; ++i) {
+    const int da = i < a.size() ? a[a.size() - 1 - i] - '0' : 0;
+    const int db = i < b.size() ? b[b.size() - 1 - i] - '0' : 0;
+    const int v = da + db + carry;
+    out.push_back(static_cast<char>('0' + v % 10));
+    carry = v / 10;
+  }
+  std::reverse(out.begin(), out.end());
+  return out;
+}
+
+/// a - b for a >= b.
+std::string SubtractMagnitude(const std::string& a, const std::string& b) {
+  std::string out;
+  int borrow = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    int v = (a[a.size() - 1 - i] - '0') - borrow -
+            (i < b.size() ? b[b.size() - 1 - i] - '0' : 0);
+    borrow = v < 0 ? 1 : 0;
+    if (v < 0) v += 10;
+    out.push_back(static_cast<char>('0' + v));
+  }
+  std::reverse(out.begin(), out.end());
+  return out;
+}
+
+/// The exact sum (no rounding).
+Decimal AddExact(const Decimal& x, const Decimal& y) {
+  if (x.digits.empty()) return y;
+  if (y.digits.empty()) return x;
+  const int64_t exponent = std::min(x.exponent, y.exponent);
+  const std::string a =
+      x.digits + std::string(static_cast<size_t>(x.exponent - exponent), '0');
+  const std::string b =
+      y.digits + std::string(static_cast<size_t>(y.exponent - exponent), '0');
+  Decimal out;
+  out.exponent = exponent;
+  if (x.negative == y.negative) {
+    out.negative = x.negative;
+    out.digits = AddMagnitude(a, b);
+  } else {
+    const int c = CompareMagnitude(a, b);
+    if (c == 0) return Decimal{};  // exact cancellation: +0
+    out.negative = c > 0 ? x.negative : y.negative;
+    out.digits = c > 0 ? SubtractMagnitude(a, b) : SubtractMagnitude(b, a);
+  }
+  Normalize(&out);
+  return out;
+}
+
+/// Rounds to kDecimalPrecision significant digits, ROUND_HALF_EVEN.
+void RoundToContext(Decimal* d) {
+  if (d->digits.size() <= kDecimalPrecision) return;
+  const std::string dropped = d->digits.substr(kDecimalPrecision);
+  d->digits.resize(kDecimalPrecision);
+  d->exponent += static_cast<int64_t>(dropped.size());
+  bool up = dropped[0] > '5';
+  if (dropped[0] == '5') {
+    const bool above_half =
+        dropped.find_first_not_of('0', 1) != std::string::npos;
+    up = above_half || (d->digits.back() - '0') % 2 == 1;
+  }
+  if (up) d->digits = AddMagnitude(d->digits, "1");
+  Normalize(d);
+}
+
+/// Sign of x - y.
+int CompareDecimal(const Decimal& x, const Decimal& y) {
+  Decimal negated_y = y;
+  negated_y.negative = !y.negative;
+  const Decimal diff = AddExact(x, negated_y);
+  if (diff.digits.empty()) return 0;
+  return diff.negative ? -1 : 1;
+}
+
+/// float(Decimal): correctly rounded (strtod is).
+double DecimalToDouble(const Decimal& d) {
+  if (d.digits.empty()) return d.negative ? -0.0 : 0.0;
+  const std::string text =
+      fmt::format("{}{}e{}", d.negative ? "-" : "", d.digits, d.exponent);
+  return std::strtod(text.c_str(), nullptr);
+}
+
 std::vector<ConfigNode> ExpandRange(const ConfigNode& start,
                                     const ConfigNode& stop,
                                     const ConfigNode& step) {
@@ -578,12 +748,22 @@ std::vector<ConfigNode> ExpandRange(const ConfigNode& start,
   if (!std::isfinite(a) || !std::isfinite(s) || std::isnan(b)) {
     throw FunctionError("range() start and step must be finite numbers");
   }
-  for (size_t i = 0;; ++i) {
-    // Exactly start + i*step (no accumulated rounding error).
-    const double v = a + static_cast<double>(i) * s;
-    if (s > 0 ? !(v < b) : !(v > b)) break;
+  // Hydra's FloatRange (see Decimal above); an infinite stop never ends the
+  // range (Decimal('Infinity') compares greater than every finite value).
+  Decimal current = DecimalFromNode(start);
+  const Decimal increment = DecimalFromNode(step);
+  const bool stop_finite = std::isfinite(b);
+  const Decimal limit = stop_finite ? DecimalFromNode(stop) : Decimal{};
+  const auto before_stop = [&]() {
+    if (!stop_finite) return s > 0 ? b > 0 : b < 0;
+    const int c = CompareDecimal(current, limit);
+    return s > 0 ? c < 0 : c > 0;
+  };
+  while (before_stop()) {
     if (values.size() >= kMaxRangeValues) too_many();
-    values.emplace_back(v);
+    values.emplace_back(DecimalToDouble(current));
+    current = AddExact(current, increment);
+    RoundToContext(&current);
   }
   return values;
 }

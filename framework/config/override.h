@@ -29,8 +29,9 @@ enum class OverrideType {
 struct SweepSpec {
   enum class Kind { kChoice, kRange, kGlob };
   Kind kind = Kind::kChoice;
-  /// kChoice: the elements; kRange: expanded values (computed exactly as
-  /// start + i*step); kGlob: empty until ExpandGlob() is called.
+  /// kChoice: the elements; kRange: expanded values (ints stay ints; floats
+  /// as Hydra's FloatRange computes them, in Python decimal arithmetic);
+  /// kGlob: empty until ExpandGlob() is called.
   std::vector<ConfigNode> values;
   // kGlob: patterns over a config group's option names (fnmatch-style).
   std::vector<std::string> glob_include;

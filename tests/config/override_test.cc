@@ -342,22 +342,62 @@ TEST(OverrideParser, RangeSweeps) {
   EXPECT_EQ(RangeValues("a=range(1.5,3)"), (std::vector<ConfigNode>{1.5, 2.5}));
   EXPECT_TRUE(RangeValues("a=range(3,1)").empty());
 
-  // Float ranges are computed exactly as start + i*step (no accumulation).
-  const std::vector<ConfigNode> values = RangeValues("a=range(0,10,3.3)");
-  ASSERT_EQ(values.size(), 4u);
-  for (size_t i = 0; i < values.size(); ++i) {
-    ASSERT_TRUE(values[i].IsDouble());
-    EXPECT_EQ(values[i].AsDouble(), 0.0 + static_cast<double>(i) * 3.3);
+  // Ints stay ints; one float argument makes every value a float.
+  for (const ConfigNode& v : RangeValues("a=range(0,3)")) {
+    EXPECT_TRUE(v.IsInt());
   }
-  EXPECT_EQ(FormatOverrideValue(values[0]), "0.0");
-  EXPECT_EQ(FormatOverrideValue(values[1]), "3.3");
-  EXPECT_EQ(FormatOverrideValue(values[2]), "6.6");
-  // 3 * 3.3 is 9.899999999999999 in binary floating point (as in Python).
-  EXPECT_EQ(FormatOverrideValue(values[3]), "9.899999999999999");
+  EXPECT_EQ(RangeValues("a=range(0,3.0)"),
+            (std::vector<ConfigNode>{0.0, 1.0, 2.0}));
+  for (const ConfigNode& v : RangeValues("a=range(0,3.0)")) {
+    EXPECT_TRUE(v.IsDouble());
+  }
+}
 
-  const std::vector<ConfigNode> tenths = RangeValues("a=range(0,1,0.1)");
-  ASSERT_EQ(tenths.size(), 10u);
-  EXPECT_EQ(tenths[3].AsDouble(), 3 * 0.1);
+/// The values of a float range as Hydra writes them into job overrides.
+std::vector<std::string> FloatRangeTexts(const std::string& text) {
+  std::vector<std::string> out;
+  for (const ConfigNode& v : RangeValues(text)) {
+    EXPECT_TRUE(v.IsDouble()) << text;
+    out.push_back(FormatOverrideValue(v));
+  }
+  return out;
+}
+
+// Hydra 1.3's FloatRange builds decimal.Decimal from each float's exact value
+// and accumulates in Python's decimal context (28 digits). The expected lists
+// are what Python prints for
+//   d = Decimal(start); while d < stop: out.append(repr(float(d))); d += step
+TEST(OverrideParser, FloatRangesFollowHydrasDecimalArithmetic) {
+  // extended.md: range(0,10,3.3) -> 0.0,3.3,6.6,9.9 (not 9.899999999999999).
+  EXPECT_EQ(FloatRangeTexts("a=range(0,10,3.3)"),
+            (std::vector<std::string>{"0.0", "3.3", "6.6", "9.9"}));
+  EXPECT_EQ(FloatRangeTexts("a=range(0,10,2.5)"),
+            (std::vector<std::string>{"0.0", "2.5", "5.0", "7.5"}));
+  EXPECT_EQ(FloatRangeTexts("a=range(1e-5,5e-5,1e-5)"),
+            (std::vector<std::string>{"1e-05", "2e-05", "3e-05", "4e-05"}));
+  // The binary value of 0.1 is used, as in Hydra: 0.30000000000000004.
+  EXPECT_EQ(FloatRangeTexts("a=range(0.1,1,0.1)"),
+            (std::vector<std::string>{"0.1",
+                                      "0.2",
+                                      "0.30000000000000004",
+                                      "0.4",
+                                      "0.5",
+                                      "0.6",
+                                      "0.7000000000000001",
+                                      "0.8",
+                                      "0.9"}));
+  EXPECT_EQ(FloatRangeTexts("a=range(1,2,0.1)").back(), "1.9000000000000001");
+  // Negative steps.
+  EXPECT_EQ(FloatRangeTexts("a=range(1.3,0,-0.5)"),
+            (std::vector<std::string>{"1.3", "0.8", "0.30000000000000004"}));
+  EXPECT_EQ(FloatRangeTexts("a=range(0,-0.5,-0.1)"),
+            (std::vector<std::string>{"0.0", "-0.1", "-0.2", "-0.3", "-0.4"}));
+  EXPECT_EQ(FloatRangeTexts("a=range(-1.5,step=-0.5)"),
+            (std::vector<std::string>{"0.0", "-0.5", "-1.0"}));
+  // Stop is exclusive also when a value lands on it exactly.
+  EXPECT_EQ(FloatRangeTexts("a=range(0,1,0.25)"),
+            (std::vector<std::string>{"0.0", "0.25", "0.5", "0.75"}));
+  EXPECT_TRUE(RangeValues("a=range(1.0,0)").empty());
 }
 
 TEST(OverrideParser, GlobSweeps) {
