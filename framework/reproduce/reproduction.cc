@@ -215,6 +215,17 @@ ReproductionPlan PlanReproduction(const AblationSpec& spec,
       train.argv.insert(train.argv.end(),
                         model.train_overrides.begin(),
                         model.train_overrides.end());
+      const bool sets_threads = std::any_of(
+          overrides.begin(), overrides.end(), [](const std::string& o) {
+            const size_t key = o.find_first_not_of('+');  // ++threads=...
+            return key != std::string::npos &&
+                   o.compare(key, 8, "threads=") == 0;
+          });
+      if (options.train_threads > 0 && !sets_threads) {
+        // Not part of the model's key: the thread count changes float
+        // rounding only.
+        train.argv.push_back(fmt::format("threads={}", options.train_threads));
+      }
       train.argv.push_back(RunDirArg(model.dir));
       model.commands.push_back(train);
 

@@ -42,8 +42,15 @@ struct ReproductionOptions {
   std::filesystem::path data_dir = "../shared/data";
   /// Overrides of every training (the model scale and the training length).
   std::vector<std::string> budget = {"scale=cpu", "train.max_epochs=20"};
-  int seeds = 0;           // 0: the spec's number of seeds
-  int jobs = 2;            // models trained/evaluated at the same time
+  int seeds = 0;  // 0: the spec's number of seeds
+  int jobs = 2;   // models trained/evaluated at the same time
+  /// > 0: every training runs with `threads=<train_threads>` (unless the
+  /// budget or the variant sets `threads`), so that `jobs` trainings share
+  /// the cores instead of each taking its preset's count (scale=cpu: 2):
+  /// OpenMP threads that outnumber the cores spin against each other (two
+  /// 2-thread trainings on 2 cores ran 5x slower than two 1-thread ones).
+  /// 0: the preset's. The reproduce task sets cores / jobs.
+  int train_threads = 0;
   uint64_t test_seed = 0;  // seed of the corruption and of inference
   /// Non-empty: RunReproduction runs only these variants' models (e.g. the
   /// rows that need no training first); the others stay pending.

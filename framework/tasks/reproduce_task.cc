@@ -201,6 +201,10 @@ void RegisterReproduceTask(Registry<Task>& registry) {
     }
     reader.Read("jobs", &o.reproduction.jobs);
     reader.Check("jobs", o.reproduction.jobs >= 1, "jobs >= 1");
+    o.reproduction.train_threads =
+        std::max(1,
+                 static_cast<int>(std::thread::hardware_concurrency()) /
+                     o.reproduction.jobs);
     reader.Read("test_seed", &o.reproduction.test_seed);
     if (const ConfigNode* only = reader.Child("variants");
         only != nullptr && !only->IsNull()) {

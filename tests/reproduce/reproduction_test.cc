@@ -130,6 +130,30 @@ TEST_F(ReproductionTest, PlanIsSeedMajorAndSharesModelsByOverrides) {
             plan.models[0].dir);
 }
 
+TEST_F(ReproductionTest, TrainingsShareTheCoresUnlessTheBudgetSetsThreads) {
+  // Default: the preset's thread count (no override).
+  EXPECT_THAT(
+      PlanReproduction(Spec(), options_).models[0].commands[0].argv,
+      ::testing::Not(::testing::Contains(::testing::StartsWith("threads="))));
+  ReproductionOptions shared = options_;
+  shared.train_threads = 1;
+  const ReproductionPlan plan = PlanReproduction(Spec(), shared);
+  EXPECT_THAT(plan.models[0].commands[0].argv,
+              ::testing::Contains("threads=1"));
+  // Not part of the model's key.
+  EXPECT_EQ(plan.models[0].dir,
+            PlanReproduction(Spec(), options_).models[0].dir);
+  // A budget that sets threads (also as ++threads) wins.
+  for (const std::string set : {"threads=2", "++threads=2"}) {
+    ReproductionOptions pinned = shared;
+    pinned.budget.push_back(set);
+    const auto argv =
+        PlanReproduction(Spec(), pinned).models[0].commands[0].argv;
+    EXPECT_THAT(argv, ::testing::Contains(set));
+    EXPECT_THAT(argv, ::testing::Not(::testing::Contains("threads=1"))) << set;
+  }
+}
+
 TEST_F(ReproductionTest, EachBudgetKeepsItsOwnLedger) {
   const ReproductionPlan plan = PlanReproduction(Spec(), options_);
   EXPECT_EQ(plan.dir.parent_path(), options_.root);
