@@ -1,6 +1,8 @@
 #include "framework/config/interpolation.h"
 
+#include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
+#include "framework/core/logging.h"
 
 #include <fmt/format.h>
 
@@ -115,6 +117,18 @@ class Parser {
     }
     flush();
     return pieces;
+  }
+
+  /// singleElement in VALUE_MODE (oc.decode): one element, nothing after.
+  Element ParseSingleElement() {
+    SkipWs();
+    if (AtEnd()) return EmptyStringElement();
+    Element element = ParseElement('\0');
+    SkipWs();
+    if (!AtEnd()) {
+      Fail(fmt::format("unexpected '{}' after the value", text_[pos_]));
+    }
+    return element;
   }
 
   /// A bare interpolation key (`a.b`, `.x`, `a[0]`) as used by oc.select.
@@ -455,6 +469,36 @@ class Parser {
 /// string: `1`, `0.1`, `True`, `None`, `[1, 'a']`, `{'k': 1}`.
 std::string PyStr(const ConfigNode& node);
 
+/// Python's type(x).__name__ of a resolver argument, for OmegaConf's
+/// messages.
+std::string PyTypeName(const ConfigNode& node) {
+  switch (node.type()) {
+    case ConfigNode::Type::kNull:
+      return "NoneType";
+    case ConfigNode::Type::kBool:
+      return "bool";
+    case ConfigNode::Type::kInt:
+      return "int";
+    case ConfigNode::Type::kDouble:
+      return "float";
+    case ConfigNode::Type::kList:
+      return "list";
+    case ConfigNode::Type::kMap:
+      return "dict";
+    default:
+      return "str";
+  }
+}
+
+void ReplaceAll(std::string* text,
+                std::string_view from,
+                const std::string& to) {
+  for (size_t pos = text->find(from); pos != std::string::npos;
+       pos = text->find(from, pos + to.size())) {
+    text->replace(pos, from.size(), to);
+  }
+}
+
 std::string PyRepr(const ConfigNode& node) {
   if (node.IsString()) return fmt::format("'{}'", node.AsString());
   if (node.IsMissing()) return "'\?\?\?'";
@@ -704,6 +748,74 @@ class Engine {
     } catch (const InterpolationToMissing&) {
       return std::nullopt;
     }
+  }
+
+  /// oc.decode: evaluates `text` as one resolver-argument element.
+  ConfigNode Decode(const std::string& text, std::string_view node_path) {
+    Element element;
+    try {
+      element = Parser(text).ParseSingleElement();
+    } catch (const GrammarError& error) {
+      throw ConfigError(fmt::format(
+          "GrammarParseError: {} in '{}' (oc.decode, while resolving '{}')",
+          error.message,
+          text,
+          DisplayPath(node_path)));
+    }
+    return EvaluateElement(element, Context{node_path, nullptr});
+  }
+
+  /// The node at a (relative or absolute) key and its absolute dotted path,
+  /// without resolving the node itself; nullptr if there is none.
+  const ConfigNode* FindKey(const std::string& key,
+                            std::string_view node_path,
+                            std::string* absolute,
+                            std::shared_ptr<ConfigNode>* owner) {
+    InterpPtr interp;
+    try {
+      interp = Parser(key).ParseKeyOnly();
+    } catch (const GrammarError& error) {
+      throw ConfigError(fmt::format(
+          "GrammarParseError: {} in key '{}' (while resolving '{}')",
+          error.message,
+          key,
+          DisplayPath(node_path)));
+    }
+    const Context context{node_path, nullptr};
+    std::vector<std::string> parts;
+    for (const KeyPart& part : interp->keys) {
+      parts.push_back(KeyText(part, context));
+    }
+    std::vector<std::string> segments;
+    if (!AbsoluteSegments(interp->dots, parts, node_path, &segments)) {
+      return nullptr;
+    }
+    const Found found = Lookup(segments);
+    *owner = found.owner;
+    *absolute = fmt::format("{}", fmt::join(segments, "."));
+    return found.node;
+  }
+
+  /// Resolves the interpolations inside a node built by a resolver (oc.create
+  /// from a YAML string), each in the context of the node being resolved.
+  ConfigNode ResolveCreated(const ConfigNode& node,
+                            std::string_view node_path) {
+    if (node.IsInterpolation()) {
+      return EvaluateText(node.text(), node_path, nullptr);
+    }
+    if (!node.IsContainer()) return node;
+    ConfigNode out =
+        node.IsMap() ? ConfigNode::EmptyMap() : ConfigNode::EmptyList();
+    if (node.IsMap()) {
+      for (const auto& [key, child] : node.entries()) {
+        out.Set(key, ResolveCreated(child, node_path));
+      }
+    } else {
+      for (const ConfigNode& item : node.items()) {
+        out.Append(ResolveCreated(item, node_path));
+      }
+    }
+    return out;
   }
 
   /// The value at an absolute dotted key; throws InterpolationKeyError if it
@@ -1069,6 +1181,166 @@ void RegisterBuiltinResolvers(ResolverRegistry* registry) {
         if (value) return *value;
         return args.size() == 2 ? args[1] : ConfigNode::Null();
       });
+
+  registry->Register(
+      "oc.decode",
+      [](const std::vector<ConfigNode>& args, const ResolverCall& call) {
+        CheckArgCount("oc.decode", args, 1, 1, call, "oc.decode:string");
+        if (args[0].IsNull()) return ConfigNode::Null();
+        if (!args[0].IsString()) {
+          throw ConfigError(fmt::format(
+              "`oc.decode` can only take strings or None as input, but `{}` "
+              "is of type {} (while resolving '{}')",
+              PyStr(args[0]),
+              PyTypeName(args[0]),
+              DisplayPath(call.node_path)));
+        }
+        return WithEngine(*call.root, *call.registry, [&](Engine& engine) {
+          return engine.Decode(args[0].AsString(), call.node_path);
+        });
+      });
+
+  registry->Register(
+      "oc.create",
+      [](const std::vector<ConfigNode>& args, const ResolverCall& call) {
+        CheckArgCount("oc.create", args, 1, 1, call, "oc.create:dict_or_list");
+        // OmegaConf.create(obj): a string is YAML; None (or empty YAML) is
+        // {}; a YAML scalar string `s` is {s: None}.
+        ConfigNode obj = args[0];
+        if (obj.IsString()) {
+          obj = ParseYaml(obj.AsString(), "<oc.create>");
+          if (obj.IsString()) {
+            ConfigNode map = ConfigNode::EmptyMap();
+            map.Set(obj.AsString(), ConfigNode::Null());
+            obj = std::move(map);
+          }
+        }
+        if (obj.IsNull()) return ConfigNode::EmptyMap();
+        if (!obj.IsContainer()) {
+          throw ConfigError(fmt::format(
+              "Object of unsupported type: '{}' (oc.create, while resolving "
+              "'{}')",
+              PyTypeName(obj),
+              DisplayPath(call.node_path)));
+        }
+        return WithEngine(*call.root, *call.registry, [&](Engine& engine) {
+          return engine.ResolveCreated(obj, call.node_path);
+        });
+      });
+
+  registry->Register(
+      "oc.deprecated",
+      [](const std::vector<ConfigNode>& args, const ResolverCall& call) {
+        CheckArgCount(
+            "oc.deprecated", args, 1, 2, call, "oc.deprecated:key[,message]");
+        if (!args[0].IsString()) {
+          throw ConfigError(fmt::format(
+              "oc.deprecated: interpolation key type is not a string ({}) "
+              "(while resolving '{}')",
+              PyTypeName(args[0]),
+              DisplayPath(call.node_path)));
+        }
+        if (args.size() == 2 && !args[1].IsString()) {
+          throw ConfigError(fmt::format(
+              "oc.deprecated: interpolation message type is not a string ({}) "
+              "(while resolving '{}')",
+              PyTypeName(args[1]),
+              DisplayPath(call.node_path)));
+        }
+        const std::string key = args[0].AsString();
+        return WithEngine(*call.root, *call.registry, [&](Engine& engine) {
+          std::string new_key;
+          std::shared_ptr<ConfigNode> owner;
+          const ConfigNode* target =
+              engine.FindKey(key, call.node_path, &new_key, &owner);
+          if (target == nullptr) {
+            throw ConfigError(fmt::format(
+                "In oc.deprecated resolver at '{}': Key not found: '{}'",
+                DisplayPath(call.node_path),
+                key));
+          }
+          std::string message =
+              args.size() == 2 ? args[1].AsString()
+                               : std::string(
+                                     "'$OLD_KEY' is deprecated. Change your "
+                                     "code and config to use '$NEW_KEY'");
+          ReplaceAll(&message, "$OLD_KEY", std::string(call.node_path));
+          ReplaceAll(&message, "$NEW_KEY", new_key);
+          SOMA_LOG(WARNING, "{}", message);
+          if (target->IsMissing()) {
+            throw ConfigError(
+                fmt::format("MissingMandatoryValue: {}", DisplayPath(new_key)));
+          }
+          return engine.ResolveValue(*target);
+        });
+      });
+
+  const auto dict_input = [](std::string_view name,
+                             const std::vector<ConfigNode>& args,
+                             const ResolverCall& call) {
+    CheckArgCount(name, args, 1, 1, call, fmt::format("{}:key", name));
+    if (!args[0].IsString()) {
+      throw ConfigError(fmt::format(
+          "`{}` requires a string as input, but obtained `{}` of type: {} "
+          "(while resolving '{}')",
+          name,
+          PyStr(args[0]),
+          PyTypeName(args[0]),
+          DisplayPath(call.node_path)));
+    }
+    const std::string key = args[0].AsString();
+    return WithEngine(*call.root, *call.registry, [&](Engine& engine) {
+      std::string absolute;
+      std::shared_ptr<ConfigNode> owner;
+      const ConfigNode* target =
+          engine.FindKey(key, call.node_path, &absolute, &owner);
+      if (target == nullptr) {
+        throw ConfigError(
+            fmt::format("Key not found: '{}' ({}, while "
+                        "resolving '{}')",
+                        key,
+                        name,
+                        DisplayPath(call.node_path)));
+      }
+      if (target->IsMissing()) {
+        throw ConfigError(
+            fmt::format("MissingMandatoryValue: {}", DisplayPath(absolute)));
+      }
+      ConfigNode value = engine.ResolveValue(*target);
+      if (!value.IsMap()) {
+        throw ConfigError(fmt::format(
+            "`{}` cannot be applied to objects of type: {} (while resolving "
+            "'{}')",
+            name,
+            value.IsList() ? std::string("ListConfig") : PyTypeName(value),
+            DisplayPath(call.node_path)));
+      }
+      return value;
+    });
+  };
+
+  registry->Register("oc.dict.keys",
+                     [dict_input](const std::vector<ConfigNode>& args,
+                                  const ResolverCall& call) {
+                       const ConfigNode dict =
+                           dict_input("oc.dict.keys", args, call);
+                       ConfigNode keys = ConfigNode::EmptyList();
+                       for (const auto& [key, value] : dict.entries()) {
+                         keys.Append(ConfigNode::LiteralString(key));
+                       }
+                       return keys;
+                     });
+
+  registry->Register("oc.dict.values",
+                     [dict_input](const std::vector<ConfigNode>& args,
+                                  const ResolverCall& call) {
+                       const ConfigNode dict =
+                           dict_input("oc.dict.values", args, call);
+                       ConfigNode values = ConfigNode::EmptyList();
+                       for (const auto& [key, value] : dict.entries())
+                         values.Append(value);
+                       return values;
+                     });
 
   registry->Register(
       "hydra",

@@ -37,8 +37,11 @@ using ResolverFn = std::function<ConfigNode(const std::vector<ConfigNode>& args,
 /// Name -> resolver. Registering a duplicate name throws ConfigError.
 /// Built-ins (RegisterBuiltinResolvers): `now` (strftime, cached per pattern
 /// per registry so a run directory is stable), `oc.env` (always a string),
-/// `oc.select`, `hydra` (reads `hydra.<path>` of the root),
-/// `hydra_override_dirname`.
+/// `oc.select`, `oc.decode` (parses a string as a resolver argument),
+/// `oc.create` (a dict/list, or a YAML string, as a config node),
+/// `oc.deprecated` (the value at another key, with a warning),
+/// `oc.dict.keys` / `oc.dict.values` (of the dict at a key), `hydra` (reads
+/// `hydra.<path>` of the root), `hydra_override_dirname`.
 class ResolverRegistry {
  public:
   ResolverRegistry();  // with the built-in resolvers

@@ -432,6 +432,163 @@ TEST(Resolvers, OcSelect) {
   EXPECT_EQ(subtree.at("rel").AsInt(), 1);
 }
 
+// OmegaConf 2.x usage.rst, "oc.decode": parse environment variables.
+TEST(Resolvers, OcDecodeParsesAStringAsAValue) {
+  const ResolverRegistry resolvers;
+  ::setenv("SOMA_TEST_DB_PORT", "3308", 1);
+  ::setenv("SOMA_TEST_DB_NODES", "[host1, host2, host3]", 1);
+  ::unsetenv("SOMA_TEST_DB_TIMEOUT");
+  const ConfigNode cfg = ParseYaml(
+      "x: 7\n"
+      "database:\n"
+      "  port: ${oc.decode:${oc.env:SOMA_TEST_DB_PORT}}\n"
+      "  nodes: ${oc.decode:${oc.env:SOMA_TEST_DB_NODES}}\n"
+      "  timeout: ${oc.decode:${oc.env:SOMA_TEST_DB_TIMEOUT,null}}\n"
+      "dict: \"${oc.decode:'{a: 1, b: [true, 0.5]}'}\"\n"
+      "interp: ${oc.decode:'${x}'}\n"
+      "quoted: ${oc.decode:\"'3308'\"}\n"
+      "not_str: ${oc.decode:5}\n"
+      "bad: ${oc.decode:'[1, 2'}\n",
+      "decode.yaml");
+  const ConfigNode port = Select(cfg, "database.port", resolvers);
+  ASSERT_TRUE(port.IsInt());
+  EXPECT_EQ(port.AsInt(), 3308);
+  const ConfigNode nodes = Select(cfg, "database.nodes", resolvers);
+  ASSERT_TRUE(nodes.IsList());
+  ASSERT_EQ(nodes.size(), 3u);
+  EXPECT_EQ(nodes.items()[2].AsString(), "host3");
+  EXPECT_TRUE(Select(cfg, "database.timeout", resolvers).IsNull());
+  const ConfigNode dict = Select(cfg, "dict", resolvers);
+  EXPECT_EQ(dict.at("a").AsInt(), 1);
+  EXPECT_TRUE(dict.at("b").items()[0].AsBool());
+  EXPECT_EQ(dict.at("b").items()[1].AsDouble(), 0.5);
+  EXPECT_EQ(Select(cfg, "interp", resolvers).AsInt(), 7);
+  const ConfigNode quoted = Select(cfg, "quoted", resolvers);
+  ASSERT_TRUE(quoted.IsString());
+  EXPECT_EQ(quoted.AsString(), "3308");
+  EXPECT_NE(
+      ErrorMessage<ConfigError>([&] { Select(cfg, "not_str", resolvers); })
+          .find("`oc.decode` can only take strings or None as input, but "
+                "`5` is of type int"),
+      std::string::npos);
+  EXPECT_NE(ErrorMessage<ConfigError>([&] {
+              Select(cfg, "bad", resolvers);
+            }).find("GrammarParseError"),
+            std::string::npos);
+}
+
+// OmegaConf 2.x usage.rst, "oc.create".
+TEST(Resolvers, OcCreateMakesConfigNodes) {
+  const ResolverRegistry resolvers;
+  ::setenv("SOMA_TEST_YAML_ENV", "A: 10\nb: 20\nc: ${x}\n", 1);
+  const ConfigNode cfg = ParseYaml(
+      "x: 3\n"
+      "plain_dict: {a: 1}\n"
+      "dict_config: \"${oc.create:{a: 1}}\"\n"
+      "list_config: ${oc.create:[1, '${x}']}\n"
+      "dict_config_env: ${oc.create:${oc.env:SOMA_TEST_YAML_ENV}}\n"
+      "from_null: ${oc.create:null}\n"
+      "bad: ${oc.create:5}\n",
+      "create.yaml");
+  const ConfigNode dict = Select(cfg, "dict_config", resolvers);
+  ASSERT_TRUE(dict.IsMap());
+  EXPECT_EQ(dict.at("a").AsInt(), 1);
+  const ConfigNode list = Select(cfg, "list_config", resolvers);
+  ASSERT_TRUE(list.IsList());
+  EXPECT_EQ(list.items()[1].AsString(), "3");
+  const ConfigNode from_env = Select(cfg, "dict_config_env", resolvers);
+  ASSERT_TRUE(from_env.IsMap());
+  EXPECT_EQ(from_env.at("A").AsInt(), 10);
+  EXPECT_EQ(from_env.at("b").AsInt(), 20);
+  EXPECT_EQ(from_env.at("c").AsInt(), 3);
+  const ConfigNode empty = Select(cfg, "from_null", resolvers);
+  ASSERT_TRUE(empty.IsMap());
+  EXPECT_EQ(empty.size(), 0u);
+  EXPECT_NE(ErrorMessage<ConfigError>([&] {
+              Select(cfg, "bad", resolvers);
+            }).find("Object of unsupported type: 'int'"),
+            std::string::npos);
+}
+
+// OmegaConf 2.x usage.rst, "oc.deprecated".
+TEST(Resolvers, OcDeprecatedReturnsTheNewKey) {
+  const ResolverRegistry resolvers;
+  const ConfigNode cfg = ParseYaml(
+      "new_key: 10\n"
+      "old_key: ${oc.deprecated:new_key}\n"
+      "custom: ${oc.deprecated:new_key,'$OLD_KEY is old, use $NEW_KEY'}\n"
+      "sub:\n  v: [0, 1]\n  old: ${oc.deprecated:.v}\n"
+      "gone: ${oc.deprecated:z}\n"
+      "int_key: ${oc.deprecated:111111}\n"
+      "int_message: ${oc.deprecated:new_key,1000}\n",
+      "deprecated.yaml");
+  const ConfigNode value = Select(cfg, "old_key", resolvers);
+  ASSERT_TRUE(value.IsInt());
+  EXPECT_EQ(value.AsInt(), 10);
+  EXPECT_EQ(Select(cfg, "custom", resolvers).AsInt(), 10);
+  EXPECT_EQ(Select(cfg, "sub.old", resolvers).items()[1].AsInt(), 1);
+  // OmegaConf's test_deprecated_target_not_found wording.
+  EXPECT_NE(ErrorMessage<ConfigError>([&] {
+              Select(cfg, "gone", resolvers);
+            }).find("In oc.deprecated resolver at 'gone': Key not found: 'z'"),
+            std::string::npos);
+  EXPECT_NE(
+      ErrorMessage<ConfigError>([&] { Select(cfg, "int_key", resolvers); })
+          .find("oc.deprecated: interpolation key type is not a string "
+                "(int)"),
+      std::string::npos);
+  EXPECT_NE(
+      ErrorMessage<ConfigError>([&] { Select(cfg, "int_message", resolvers); })
+          .find("oc.deprecated: interpolation message type is not a "
+                "string (int)"),
+      std::string::npos);
+}
+
+// OmegaConf 2.x usage.rst, "Extracting lists of keys / values from a
+// dictionary".
+TEST(Resolvers, OcDictKeysAndValues) {
+  const ResolverRegistry resolvers;
+  const ConfigNode cfg = ParseYaml(
+      "ip7: 10.0.0.9\n"
+      "workers:\n"
+      "  node3: 10.0.0.2\n"
+      "  node7: ${ip7}\n"
+      "nodes: \"${oc.dict.keys: workers}\"\n"
+      "ips: \"${oc.dict.values: workers}\"\n"
+      "sub:\n  d: {a: 1, b: 2}\n  rel: ${oc.dict.values:.d}\n"
+      "lst: [1, 2]\n"
+      "on_list: ${oc.dict.keys:lst}\n"
+      "absent: ${oc.dict.values:nope}\n"
+      "not_str: ${oc.dict.keys:5}\n",
+      "dict.yaml");
+  const ConfigNode nodes = Select(cfg, "nodes", resolvers);
+  ASSERT_TRUE(nodes.IsList());
+  ASSERT_EQ(nodes.size(), 2u);
+  EXPECT_EQ(nodes.items()[0].AsString(), "node3");
+  EXPECT_EQ(nodes.items()[1].AsString(), "node7");
+  const ConfigNode ips = Select(cfg, "ips", resolvers);
+  ASSERT_EQ(ips.size(), 2u);
+  EXPECT_EQ(ips.items()[0].AsString(), "10.0.0.2");
+  EXPECT_EQ(ips.items()[1].AsString(), "10.0.0.9");
+  const ConfigNode rel = Select(cfg, "sub.rel", resolvers);
+  ASSERT_EQ(rel.size(), 2u);
+  EXPECT_EQ(rel.items()[1].AsInt(), 2);
+  EXPECT_NE(
+      ErrorMessage<ConfigError>([&] { Select(cfg, "on_list", resolvers); })
+          .find("`oc.dict.keys` cannot be applied to objects of type: "
+                "ListConfig"),
+      std::string::npos);
+  EXPECT_NE(ErrorMessage<ConfigError>([&] {
+              Select(cfg, "absent", resolvers);
+            }).find("Key not found: 'nope'"),
+            std::string::npos);
+  EXPECT_NE(
+      ErrorMessage<ConfigError>([&] { Select(cfg, "not_str", resolvers); })
+          .find("`oc.dict.keys` requires a string as input, but obtained "
+                "`5` of type: int"),
+      std::string::npos);
+}
+
 TEST(Resolvers, HydraReadsTheHydraNode) {
   const ResolverRegistry resolvers;
   const ConfigNode cfg = ParseYaml(
