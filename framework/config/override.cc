@@ -318,28 +318,29 @@ std::string FormatDouble(double value) {
 
 std::optional<ConfigNode> TryParseStandaloneValue(std::string_view text);
 
-// Hydra's QuotedString.with_quotes() for single quotes: quotes are escaped and
-// every run of backslashes preceding a quote (or the closing quote) doubled.
-std::string SingleQuote(std::string_view s) {
-  std::string out = "'";
+// Hydra's QuotedString.with_quotes(): quotes are escaped and every run of
+// backslashes preceding a quote (or the closing quote) doubled.
+std::string SingleQuote(std::string_view s, char quote = '\'') {
+  std::string out(1, quote);
   size_t i = 0;
   while (i < s.size()) {
     if (s[i] == '\\') {
       size_t k = 0;
       while (At(s, i + k) == '\\') ++k;
       const char next = At(s, i + k);
-      const bool before_quote = next == '\'' || i + k == s.size();
+      const bool before_quote = next == quote || i + k == s.size();
       out.append(before_quote ? 2 * k : k, '\\');
       i += k;
-    } else if (s[i] == '\'') {
-      out += "\\'";
+    } else if (s[i] == quote) {
+      out.push_back('\\');
+      out.push_back(quote);
       ++i;
     } else {
       out.push_back(s[i]);
       ++i;
     }
   }
-  out += "'";
+  out.push_back(quote);
   return out;
 }
 
@@ -507,8 +508,11 @@ class FunctionError : public std::runtime_error {
 struct Parsed {
   enum class Kind { kValue, kChoice, kRange, kGlob };
   Kind kind = Kind::kValue;
-  ConfigNode value;                  // kValue
-  std::vector<ConfigNode> choices;   // kChoice
+  ConfigNode value;  // kValue
+  /// kValue written as a quoted string: Hydra's QuotedString.with_quotes().
+  std::string quoted;
+  std::vector<ConfigNode> choices;         // kChoice
+  std::vector<std::string> choice_quoted;  // parallel to choices ("" = none)
   bool simple_form = false;          // kChoice written `a,b` (not choice())
   ConfigNode start, stop, step;      // kRange
   std::vector<std::string> include;  // kGlob
@@ -865,9 +869,11 @@ Parsed CastParsed(const Parsed& in, CastKind kind) {
   switch (in.kind) {
     case Parsed::Kind::kValue:
       out.value = CastNode(in.value, kind);
+      out.quoted.clear();
       return out;
     case Parsed::Kind::kChoice:
       for (ConfigNode& c : out.choices) c = CastNode(c, kind);
+      out.choice_quoted.clear();
       return out;
     case Parsed::Kind::kRange:
       if (kind != CastKind::kInt && kind != CastKind::kFloat) {
@@ -987,6 +993,7 @@ Parsed SimpleChoice(std::string_view function,
   for (size_t i = 0; i < args.size(); ++i) {
     out.choices.push_back(
         RequireValue(function, fmt::format("#{}", i + 1), args[i]));
+    out.choice_quoted.push_back(args[i].quoted);
   }
   return out;
 }
@@ -1560,7 +1567,10 @@ Parsed OverrideParser::ParseValue(size_t begin) {
     Parsed sweep;
     sweep.kind = Parsed::Kind::kChoice;
     sweep.simple_form = true;
-    for (Parsed& e : elements) sweep.choices.push_back(std::move(e.value));
+    for (Parsed& e : elements) {
+      sweep.choices.push_back(std::move(e.value));
+      sweep.choice_quoted.push_back(std::move(e.quoted));
+    }
     first = std::move(sweep);
   }
   SkipWsBefore(Tok::kEnd);
@@ -1576,7 +1586,10 @@ Parsed OverrideParser::ParseElement() {
     case Tok::kBraceOpen:
       return Parsed::Value(ParseDict());
     case Tok::kQuoted: {
-      Parsed p = Parsed::Value(ConfigNode::FromString(Next().text));
+      const char quote = text_[t.pos];
+      const std::string content = Next().text;
+      Parsed p = Parsed::Value(ConfigNode::FromString(content));
+      p.quoted = SingleQuote(content, quote);
       // Trailing whitespace after a quoted value is ignored.
       SkipWsBefore(Tok::kEnd);
       return p;
@@ -1834,6 +1847,7 @@ Override OverrideParser::ParseOverride() {
                                                        : SweepSpec::Kind::kGlob;
       if (value.kind == Parsed::Kind::kChoice) {
         spec.values = std::move(value.choices);
+        spec.quoted = std::move(value.choice_quoted);
       } else if (value.kind == Parsed::Kind::kRange) {
         try {
           spec.values = ExpandRange(value.start, value.stop, value.step);
@@ -1989,6 +2003,28 @@ std::vector<ConfigNode> SweepValues(
 
 std::string FormatOverrideValue(const ConfigNode& value) {
   return FormatElement(value, true);
+}
+
+std::vector<std::string> SweepValueStrings(
+    const SweepSpec& spec, const std::vector<std::string>& glob_options) {
+  const std::vector<ConfigNode> values = SweepValues(spec, glob_options);
+  // sort()/shuffle() reorder the values: match each back to its element.
+  std::vector<bool> used(spec.values.size(), false);
+  std::vector<std::string> out;
+  out.reserve(values.size());
+  for (const ConfigNode& value : values) {
+    std::string text;
+    if (spec.kind == SweepSpec::Kind::kChoice) {
+      for (size_t i = 0; i < spec.values.size(); ++i) {
+        if (used[i] || !(spec.values[i] == value)) continue;
+        used[i] = true;
+        if (i < spec.quoted.size()) text = spec.quoted[i];
+        break;
+      }
+    }
+    out.push_back(text.empty() ? FormatOverrideValue(value) : text);
+  }
+  return out;
 }
 
 }  // namespace soma

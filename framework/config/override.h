@@ -33,6 +33,10 @@ struct SweepSpec {
   /// as Hydra's FloatRange computes them, in Python decimal arithmetic);
   /// kGlob: empty until ExpandGlob() is called.
   std::vector<ConfigNode> values;
+  /// kChoice, parallel to `values`: the text of an element written in quotes
+  /// as Hydra keeps it for job overrides (QuotedString.with_quotes(), e.g.
+  /// `'hello world'`); empty for unquoted elements.
+  std::vector<std::string> quoted;
   // kGlob: patterns over a config group's option names (fnmatch-style).
   std::vector<std::string> glob_include;
   std::vector<std::string> glob_exclude;
@@ -80,6 +84,12 @@ std::vector<std::string> ExpandGlob(const SweepSpec& glob,
 /// The values of a sweep (choice/range/glob already expanded), after
 /// sort()/shuffle(). For glob, pass the group's options.
 std::vector<ConfigNode> SweepValues(
+    const SweepSpec& spec, const std::vector<std::string>& glob_options = {});
+
+/// SweepValues() as override elements for job override lists: elements
+/// written in quotes keep them (`b='hello world'`, as Hydra's
+/// sweep_string_iterator() does), others are FormatOverrideValue().
+std::vector<std::string> SweepValueStrings(
     const SweepSpec& spec, const std::vector<std::string>& glob_options = {});
 
 /// Renders a value as an override string element (quoting strings that would

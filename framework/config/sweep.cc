@@ -92,7 +92,7 @@ std::vector<std::string> DimensionValues(const Override& o,
     }
     options = repo.Options(o.key);
   }
-  const std::vector<ConfigNode> values = SweepValues(*o.sweep, options);
+  const std::vector<std::string> values = SweepValueStrings(*o.sweep, options);
   if (values.empty()) {
     throw ConfigError(
         fmt::format("The sweep '{}' has no values (no job to run)", o.input));
@@ -100,9 +100,7 @@ std::vector<std::string> DimensionValues(const Override& o,
   const std::string key = KeyElement(o);
   std::vector<std::string> out;
   out.reserve(values.size());
-  for (const ConfigNode& v : values) {
-    out.push_back(key + "=" + FormatOverrideValue(v));
-  }
+  for (const std::string& v : values) out.push_back(key + "=" + v);
   return out;
 }
 

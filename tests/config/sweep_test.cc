@@ -113,16 +113,18 @@ TEST_F(SweepTest, RangeSweeps) {
 }
 
 TEST_F(SweepTest, JobOverridesReparseToTheSweptValues) {
+  // Quoted elements keep their quotes, as written (Hydra's
+  // QuotedString.with_quotes()).
   const Jobs jobs = Expand({"a=\"x,y\",z,'1',''", "b=[1,2],[3]", "c={k:v}"});
   EXPECT_EQ(jobs,
-            (Jobs{{"a='x,y'", "b=[1,2]", "c={k:v}"},
-                  {"a='x,y'", "b=[3]", "c={k:v}"},
+            (Jobs{{"a=\"x,y\"", "b=[1,2]", "c={k:v}"},
+                  {"a=\"x,y\"", "b=[3]", "c={k:v}"},
                   {"a=z", "b=[1,2]", "c={k:v}"},
                   {"a=z", "b=[3]", "c={k:v}"},
                   {"a='1'", "b=[1,2]", "c={k:v}"},
                   {"a='1'", "b=[3]", "c={k:v}"},
-                  {"a=", "b=[1,2]", "c={k:v}"},
-                  {"a=", "b=[3]", "c={k:v}"}}));
+                  {"a=''", "b=[1,2]", "c={k:v}"},
+                  {"a=''", "b=[3]", "c={k:v}"}}));
   const std::vector<ConfigNode> a_values = {ConfigNode::FromString("x,y"),
                                             ConfigNode::FromString("z"),
                                             ConfigNode::FromString("1"),
@@ -132,6 +134,24 @@ TEST_F(SweepTest, JobOverridesReparseToTheSweptValues) {
     ASSERT_FALSE(o.IsSweep());
     EXPECT_EQ(*o.value, a_values[i / 2]);
   }
+}
+
+// Hydra writes a swept value that needs quotes into the job's
+// .hydra/overrides.yaml as written: b='hello world', not b=hello world.
+TEST_F(SweepTest, QuotedSweepValuesKeepTheirQuotes) {
+  EXPECT_EQ(Expand({"b='hello world',x"}),
+            (Jobs{{"b='hello world'"}, {"b=x"}}));
+  EXPECT_EQ(Expand({"b=choice(\"hello world\",'it\\'s')"}),
+            (Jobs{{"b=\"hello world\""}, {"b='it\\'s'"}}));
+  // sort() reorders; each value keeps its own text.
+  EXPECT_EQ(Expand({"b=sort('z z',a,'b')"}),
+            (Jobs{{"b=a"}, {"b='b'"}, {"b='z z'"}}));
+  // A non-sweep override in a multirun is kept as written.
+  EXPECT_EQ(Expand({"b='hello world'", "a=1,2"}),
+            (Jobs{{"b='hello world'", "a=1"}, {"b='hello world'", "a=2"}}));
+  // A cast value has no source quotes; strings that would re-parse as
+  // another type are single-quoted (Hydra would write b=1 here).
+  EXPECT_EQ(Expand({"b=str(choice('1',2))"}), (Jobs{{"b='1'"}, {"b='2'"}}));
 }
 
 TEST_F(SweepTest, PrefixAndPackageInJobOverrides) {
