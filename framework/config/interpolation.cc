@@ -850,7 +850,9 @@ class Engine {
           chain.push_back(DisplayPath(*i));
         chain.push_back(DisplayPath(path));
         throw ConfigError(
-            fmt::format("Interpolation cycle: {}", fmt::join(chain, " -> ")));
+            fmt::format("InterpolationResolutionError: Recursive interpolation "
+                        "detected. Interpolation cycle: {}",
+                        fmt::join(chain, " -> ")));
       }
       stack.push_back(path);
     }
