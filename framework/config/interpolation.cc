@@ -42,6 +42,8 @@ struct KeyPart {
   bool bracket = false;
 };
 
+struct DictEntry;
+
 /// A resolver argument.
 struct Element {
   enum class Kind { kPrimitive, kQuoted, kList, kDict };
@@ -49,7 +51,14 @@ struct Element {
   std::vector<Piece> pieces;   // kPrimitive and kQuoted
   bool escaped = false;        // kPrimitive with an escape: always a string
   std::vector<Element> items;  // kList
-  std::vector<std::pair<std::string, Element>> entries;  // kDict
+  // kDict. Not std::pair<std::string, Element>: a pair of an incomplete type
+  // does not compile with clang and libstdc++ 12.
+  std::vector<DictEntry> entries;
+};
+
+struct DictEntry {
+  std::string key;
+  Element value;
 };
 
 struct Interp {
@@ -336,7 +345,8 @@ class Parser {
       if (key_text.empty()) Fail("empty dict key");
       Expect(':');
       Element value = ParseElement('}');
-      element.entries.emplace_back(std::move(key_text), std::move(value));
+      element.entries.push_back(
+          DictEntry{std::move(key_text), std::move(value)});
       SkipWs();
       if (Peek() == ',') {
         ++pos_;
