@@ -282,8 +282,10 @@ class YamlConverter {
     ConfigNode merged = ConfigNode::EmptyMap();
     ConfigNode own = ConfigNode::EmptyMap();
     for (auto it = yaml.begin(); it != yaml.end(); ++it) {
-      const YAML::Node& key = it->first;
-      const YAML::Node& value = it->second;
+      // Copies (YAML::Node is a handle): `it->first` is a member of a
+      // temporary that dies at the end of the statement.
+      const YAML::Node key = it->first;
+      const YAML::Node value = it->second;
       const int key_line = LineOf(key, line);
       if (!key.IsScalar() && !key.IsNull()) {
         Fail(key_line, "only scalar keys are supported");

@@ -156,6 +156,22 @@ TEST(ParseYaml, BuildsNestedTreesWithPathsAndLines) {
   EXPECT_EQ(b.source().line, 7);
 }
 
+// Found by the config fuzzer (ASan: stack-use-after-scope): the converter
+// held references into a yaml-cpp map iterator's temporary. Every block map
+// reached it; this one is tests/fuzz/corpus/config/seed-cycle.yaml.
+TEST(ParseYaml, MapEntriesKeepKeysValuesAndLines) {
+  const ConfigNode root =
+      ParseYaml("a: ${b}\nb: ${c}\nc: ${a}\nhydra:\n  job:\n    name: x${a}\n",
+                "cycle.yaml");
+  EXPECT_EQ(root.Keys(), (std::vector<std::string>{"a", "b", "c", "hydra"}));
+  EXPECT_EQ(root.at("a").text(), "${b}");
+  EXPECT_EQ(root.at("c").source().line, 3);
+  const ConfigNode* name = root.FindPath("hydra.job.name");
+  ASSERT_NE(name, nullptr);
+  EXPECT_EQ(name->text(), "x${a}");
+  EXPECT_EQ(name->source().line, 6);
+}
+
 TEST(ParseYaml, MalformedYamlIsOneLineConfigErrorWithLocation) {
   const std::string message = ErrorMessage<ConfigError>(
       [] { ParseYaml("a: 1\nb: [1, 2\nc: 3\n", "bad.yaml"); });
