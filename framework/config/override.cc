@@ -319,12 +319,17 @@ std::string FormatDouble(double value) {
 std::optional<ConfigNode> TryParseStandaloneValue(std::string_view text);
 
 // Hydra's QuotedString.with_quotes(): quotes are escaped and every run of
-// backslashes preceding a quote (or the closing quote) doubled.
+// backslashes preceding a quote (or the closing quote) doubled. Interpolations
+// are copied verbatim, as the lexer reads them (LexQuoted): a quote inside
+// `${...}` is not escaped.
 std::string SingleQuote(std::string_view s, char quote = '\'') {
   std::string out(1, quote);
   size_t i = 0;
   while (i < s.size()) {
-    if (s[i] == '\\') {
+    if (const size_t n = MatchInterpolation(s, i)) {
+      out.append(s.substr(i, n));
+      i += n;
+    } else if (s[i] == '\\') {
       size_t k = 0;
       while (At(s, i + k) == '\\') ++k;
       const char next = At(s, i + k);
@@ -358,7 +363,11 @@ std::string FormatString(const ConfigNode& node, bool top_level) {
   const std::string& text = node.text();
   if (text.empty()) return top_level ? std::string() : std::string("''");
   const std::optional<ConfigNode> reparsed = TryParseStandaloneValue(text);
-  if (reparsed && reparsed->type() == node.type() && reparsed->text() == text) {
+  // Inside a sweep, list or dict a trailing backslash would escape the `,`,
+  // `]` or `}` written after the element (`a\,b` is one string): quote it.
+  const bool escapes_next = !top_level && text.back() == '\\';
+  if (reparsed && reparsed->type() == node.type() && reparsed->text() == text &&
+      !escapes_next) {
     return text;
   }
   return SingleQuote(text);

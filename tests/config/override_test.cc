@@ -739,6 +739,33 @@ TEST(FormatOverrideValue, RoundTripsThroughTheParser) {
   }
 }
 
+// Found by the override fuzzer (tests/fuzz/corpus/override/): `m=a\\,b` is
+// the sweep `a\`, `b`; written back unquoted, `a\,b` was one string.
+TEST(OverrideToString, QuotesElementsEndingInABackslash) {
+  const Override o = ParseOverride("m=a\\\\,b");
+  ASSERT_TRUE(o.IsSweep());
+  ASSERT_EQ(o.sweep->values.size(), 2u);
+  EXPECT_EQ(o.sweep->values[0].AsString(), "a\\");
+  EXPECT_EQ(o.ToString(), "m='a\\\\',b");
+  const Override again = ParseOverride(o.ToString());
+  ASSERT_TRUE(again.IsSweep());
+  EXPECT_EQ(again.sweep->values, o.sweep->values);
+  EXPECT_EQ(FormatOverrideValue(List({Str("a\\"), Str("b")})), "['a\\\\',b]");
+  EXPECT_EQ(FormatOverrideValue(Str("a\\")), "a\\");  // alone: no quotes
+}
+
+// Found by the override fuzzer (tests/fuzz/corpus/override/): the lexer
+// copies `${...}` inside quotes verbatim, so a quote in it is not escaped.
+TEST(OverrideToString, KeepsQuotesInsideInterpolationsOfQuotedStrings) {
+  const Override o = ParseOverride(R"(c="x \"q' ${x[u' }")");
+  ASSERT_TRUE(o.value.has_value());
+  EXPECT_EQ(o.value->text(), "x \"q' ${x[u' }");
+  EXPECT_EQ(o.ToString(), R"(c='x "q\' ${x[u' }')");
+  const Override again = ParseOverride(o.ToString());
+  ASSERT_TRUE(again.value.has_value());
+  EXPECT_EQ(*again.value, *o.value);
+}
+
 TEST(OverrideToString, IsCanonical) {
   const std::vector<std::pair<std::string, std::string>> cases = {
       {"a=1", "a=1"},
