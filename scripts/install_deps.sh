@@ -5,7 +5,7 @@ set -euo pipefail
 
 PACKAGES=(
   build-essential cmake git pkg-config ccache clang-format
-  # The C3D fuzzer (scripts/fuzz_c3d.sh): clang, its libFuzzer/sanitizer
+  # The fuzzers (scripts/fuzz.sh): clang, its libFuzzer/sanitizer
   # runtimes and its OpenMP headers (the model library needs OpenMP).
   clang libclang-rt-14-dev libomp-14-dev
   libtorch-dev libeigen3-dev libyaml-cpp-dev libceres-dev libhdf5-dev

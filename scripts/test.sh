@@ -5,6 +5,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh
 ctest --test-dir build --output-on-failure -j"$(nproc)" --timeout 600
-# A bounded libFuzzer run of the C3D reader (clang; crashes fail the run),
-# with a fixed seed so the same inputs are explored on every run.
-bash scripts/fuzz_c3d.sh 30 1
+# Bounded libFuzzer runs (clang; crashes fail the run) of the C3D reader, the
+# override grammar and YAML loading + composition, 30 s each with a fixed seed
+# so the same inputs are explored on every run.
+for target in c3d override config; do
+  bash scripts/fuzz.sh "$target" 30 1
+done
