@@ -772,6 +772,14 @@ std::vector<ConfigNode> ExpandRange(const ConfigNode& start,
     const int c = CompareDecimal(current, limit);
     return s > 0 ? c < 0 : c > 0;
   };
+  // Too long: say so now rather than after a million decimal additions
+  // (seconds; a step below the 28-digit resolution never advances). One
+  // rounded step advances by at most twice `step`, so more than 2.5 million
+  // steps from start to stop means more than a million values.
+  if (!stop_finite && before_stop()) too_many();
+  if (stop_finite && (b - a) / s > 2.5 * static_cast<double>(kMaxRangeValues)) {
+    too_many();
+  }
   while (before_stop()) {
     if (values.size() >= kMaxRangeValues) too_many();
     values.emplace_back(DecimalToDouble(current));

@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <optional>
@@ -351,6 +352,34 @@ TEST(OverrideParser, RangeSweeps) {
   for (const ConfigNode& v : RangeValues("a=range(0,3.0)")) {
     EXPECT_TRUE(v.IsDouble());
   }
+}
+
+// Found by the override fuzzer (tests/fuzz/corpus/override/): a float range
+// with a tiny step ran a million decimal additions before its error (a step
+// below the 28-digit resolution never advances); the error is now immediate.
+TEST(OverrideParser, OverlongFloatRangesFailAtOnce) {
+  for (const char* text : {"a=range(0,5.,3.1e-33)",
+                           "a=range(0,1,1e-7)",
+                           "a=range(1e20,2e20,1e-10)",
+                           "a=range(0,inf)",
+                           "a=range(0,-inf,-0.5)"}) {
+    const auto start = std::chrono::steady_clock::now();
+    try {
+      ParseOverride(text);
+      ADD_FAILURE() << text << " parsed";
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(
+                    "range() produces more than 1000000 values"),
+                std::string::npos)
+          << e.what();
+    }
+    EXPECT_LT(std::chrono::steady_clock::now() - start, std::chrono::seconds(1))
+        << text;
+  }
+  // Long ranges under the limit still expand.
+  const size_t n = RangeValues("a=range(0,1,1e-5)").size();
+  EXPECT_GE(n, 99999u);
+  EXPECT_LE(n, 100001u);
 }
 
 /// The values of a float range as Hydra writes them into job overrides.
