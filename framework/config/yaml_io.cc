@@ -470,6 +470,8 @@ std::string YamlScalar(const ConfigNode& node) {
   return "null";
 }
 
+constexpr size_t kMaxImplicitKeyBytes = 1024;
+
 std::string YamlKey(const std::string& key) {
   return QuoteIfNeeded(key, ConfigNode::LiteralString(key));
 }
@@ -500,7 +502,14 @@ void EmitBlock(const ConfigNode& node, int indent, int step, std::string* out) {
   const std::string pad(static_cast<size_t>(indent), ' ');
   if (node.IsMap()) {
     for (const auto& [key, child] : node.entries()) {
-      *out += pad + YamlKey(key) + ":";
+      // An implicit key is at most 1024 characters (YAML 1.2, 7.4.2; yaml-cpp
+      // counts bytes): a longer one is written as an explicit `? key`.
+      const std::string written = YamlKey(key);
+      if (written.size() > kMaxImplicitKeyBytes) {
+        *out += pad + "? " + written + "\n" + pad + ":";
+      } else {
+        *out += pad + written + ":";
+      }
       if (child.IsMap() && child.size() > 0) {
         *out += "\n";
         EmitBlock(child, indent + step, step, out);

@@ -381,6 +381,30 @@ TEST(DumpYaml, RoundTripsAMixedTree) {
   EXPECT_EQ(DumpYaml(parsed), dumped);
 }
 
+// Found by the config fuzzer (tests/fuzz/corpus/config/): a key longer than
+// YAML's 1024-character limit for implicit keys did not parse back.
+TEST(DumpYaml, KeysOverTheImplicitKeyLimitAreExplicit) {
+  const std::string limit(1024, 'k');
+  const std::string longer(1025, 'k');
+  const std::string quoted = " a: b # " + std::string(1100, 'q');
+  ConfigNode root;
+  root.Set(limit, 1);
+  root.Set(longer, 2);
+  root.Set(quoted, ConfigNode::Null());
+  root.SetPath("nested.x", ConfigNode::EmptyMap());
+  root.at("nested").at("x").Set(longer, ConfigNode::EmptyList());
+  root.at("nested").at("x").at(longer).Append("item");
+  root.at("nested").at("x").Set(limit, ConfigNode::EmptyMap());
+  root.at("nested").at("x").at(limit).Set("k", "v");
+  const std::string dumped = DumpYaml(root);
+  EXPECT_EQ(dumped.rfind(limit + ": 1\n", 0), 0u);
+  EXPECT_NE(dumped.find("? " + longer + "\n: 2\n"), std::string::npos);
+  const ConfigNode parsed = ParseYaml(dumped, "dumped.yaml");
+  EXPECT_EQ(parsed, root) << dumped;
+  EXPECT_EQ(parsed.Keys(), root.Keys());
+  EXPECT_EQ(DumpYaml(parsed), dumped);
+}
+
 TEST(DumpYaml, ScalarsAndEmptyRoots) {
   EXPECT_EQ(DumpYaml(ConfigNode::EmptyMap()), "{}\n");
   EXPECT_EQ(DumpYaml(ConfigNode::EmptyList()), "[]\n");
