@@ -67,6 +67,7 @@ ProceduralMotionSource::Options DecodeProceduralOptions(
   reader.Read("duration_s", &options.motion.duration_s);
   reader.Read("joint_jitter_deg", &options.motion.joint_jitter_deg);
   reader.Read("random_pose_range", &options.motion.random_pose_range);
+  reader.Read("head_turn_deg", &options.motion.head_turn_deg);
   reader.Read("val_fraction", &options.split.val);
   reader.Read("test_fraction", &options.split.test);
   reader.Check(
@@ -76,6 +77,10 @@ ProceduralMotionSource::Options DecodeProceduralOptions(
                options.motion.random_pose_range > 0 &&
                    options.motion.random_pose_range <= 1,
                "0 < random_pose_range <= 1");
+  reader.Check(
+      "head_turn_deg",
+      options.motion.head_turn_deg >= 0 && options.motion.head_turn_deg <= 180,
+      "0 <= head_turn_deg <= 180");
   reader.Check("val_fraction",
                options.split.val >= 0 && options.split.test >= 0 &&
                    options.split.val + options.split.test < 1,

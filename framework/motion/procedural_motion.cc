@@ -738,6 +738,44 @@ std::vector<Frame> RandomPose(const Clip& clip) {
   return Sample(keys, clip);
 }
 
+/// Adds a smooth random head turn to every frame (ProceduralMotionOptions::
+/// head_turn_deg): yaw, pitch and roll as sums of two sinusoids each, split
+/// evenly over the neck and head joints.
+void LookAround(const Clip& clip, std::vector<Frame>& frames) {
+  const double max_yaw = clip.options->head_turn_deg * kDeg;
+  struct Wave {
+    double amplitude[2], freq[2], phase[2];
+    double At(double t) const {
+      return amplitude[0] * std::sin(kTwoPi * freq[0] * t + phase[0]) +
+             amplitude[1] * std::sin(kTwoPi * freq[1] * t + phase[1]);
+    }
+  };
+  auto draw = [&](double max_amplitude) {
+    Wave w;
+    const double total = clip.U(0, max_amplitude);
+    const double split = clip.U(0.2, 0.8);
+    w.amplitude[0] = total * split;
+    w.amplitude[1] = total * (1 - split);
+    for (int k = 0; k < 2; ++k) {
+      w.freq[k] = clip.U(0.1, 0.6);
+      w.phase[k] = clip.U(0, kTwoPi);
+    }
+    return w;
+  };
+  const Wave yaw = draw(max_yaw);
+  const Wave pitch = draw(0.5 * max_yaw);
+  const Wave roll = draw(0.25 * max_yaw);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    const double t = clip.Time(static_cast<int>(i));
+    for (int j : {kNeck, kHead}) {
+      JointAngles& a = frames[i].angles[j];
+      a.twist += 0.5 * yaw.At(t);
+      a.flexion += 0.5 * pitch.At(t);
+      a.abduction += 0.5 * roll.At(t);
+    }
+  }
+}
+
 using Generator = std::function<std::vector<Frame>(const Clip&)>;
 
 const std::vector<std::pair<std::string, Generator>>& Generators() {
@@ -843,6 +881,8 @@ PoseSequence GenerateProceduralMotion(const std::string& type,
             &rng,
             &options};
   std::vector<Frame> frames = it->second(clip);
+  if (options.head_turn_deg > 0 && type != "random_pose")
+    LookAround(clip, frames);
 
   // Per-clip random offsets of every angle (individual style), then clamp to
   // the joint limits.

@@ -33,6 +33,12 @@ struct ProceduralMotionOptions {
   double joint_jitter_deg = 5.0;  // per-clip random offset of every angle
   /// Scale of random_pose angles within the joint limits (1 = full range).
   double random_pose_range = 0.9;
+  /// Looking around: every clip but random_pose turns the head (neck and
+  /// head joints, half each) by a smooth random yaw of amplitude up to this
+  /// many degrees, with pitch up to half of it and roll up to a quarter, at
+  /// 0.1-0.6 Hz; the joint limits still clamp. 0 = the types' own head
+  /// angles only.
+  double head_turn_deg = 0.0;
 };
 
 /// Generates one clip of `type` for `body` (its mean-shape rest joints are

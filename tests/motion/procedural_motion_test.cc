@@ -170,6 +170,43 @@ TEST(ProceduralMotion, SquatLowersThePelvis) {
   EXPECT_GT(highest - lowest, 0.2);
 }
 
+/// Yaw of the head relative to the upper spine, degrees: the angle of the
+/// head's forward axis (-Y at rest) about the spine's vertical axis.
+double HeadYawDeg(const BodyPose& pose) {
+  const PosedSkeleton s = Pose(pose);
+  const Eigen::Matrix3d relative =
+      s.global[kSpine3].rotation().transpose() * s.global[kHead].rotation();
+  const Eigen::Vector3d forward = relative * Eigen::Vector3d(0, -1, 0);
+  return std::atan2(forward.x(), -forward.y()) / kDeg;
+}
+
+TEST(ProceduralMotion, HeadTurnLooksAroundAndZeroKeepsTheClip) {
+  ProceduralMotionOptions off;
+  ProceduralMotionOptions on;
+  on.head_turn_deg = 60;
+  for (const char* type : {"walk", "crouch_walk"}) {
+    Rng a(8), b(8), c(8);
+    const PoseSequence plain = GenerateProceduralMotion(type, Body(), off, a);
+    const PoseSequence again = GenerateProceduralMotion(type, Body(), off, b);
+    const PoseSequence turned = GenerateProceduralMotion(type, Body(), on, c);
+    double plain_range = 0, turned_lo = 1e9, turned_hi = -1e9, lo = 1e9,
+           hi = -1e9;
+    for (int i = 0; i < plain.num_frames(); ++i) {
+      EXPECT_EQ(plain.frames[i].rotations, again.frames[i].rotations);
+      const double y0 = HeadYawDeg(plain.frames[i]);
+      const double y1 = HeadYawDeg(turned.frames[i]);
+      lo = std::min(lo, y0);
+      hi = std::max(hi, y0);
+      turned_lo = std::min(turned_lo, y1);
+      turned_hi = std::max(turned_hi, y1);
+      EXPECT_LE(std::abs(y1), 62.0) << type << " frame " << i;  // limits
+    }
+    plain_range = hi - lo;
+    EXPECT_LT(plain_range, 15.0) << type;
+    EXPECT_GT(turned_hi - turned_lo, plain_range + 10.0) << type;
+  }
+}
+
 TEST(ProceduralMotion, UnknownTypeListsKnownOnes) {
   Rng rng(0);
   try {
