@@ -38,7 +38,7 @@ void ParseBothWays(const std::vector<uint8_t>& bytes) {
 }
 
 TEST(C3dRegression, FuzzCrashInputsNoLongerCrash) {
-  const auto dir = testing::SourceDir() / "tests" / "fuzz" / "corpus";
+  const auto dir = testing::SourceDir() / "tests" / "fuzz" / "corpus" / "c3d";
   ASSERT_TRUE(std::filesystem::is_directory(dir)) << dir;
   int inputs = 0;
   for (const auto& entry : std::filesystem::directory_iterator(dir)) {
