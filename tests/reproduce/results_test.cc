@@ -107,8 +107,8 @@ std::string Number(double value, int decimals) {
   }
   std::string pattern = "(?:";
   for (size_t i = 0; i < texts.size(); ++i) {
-    pattern += (i ? "|" : "") +
-               std::regex_replace(texts[i], std::regex(R"(\.)"), R"(\.)");
+    if (i > 0) pattern += '|';
+    pattern += std::regex_replace(texts[i], std::regex(R"(\.)"), R"(\.)");
   }
   return pattern + ")";
 }
@@ -295,6 +295,18 @@ TEST(ResultsTest, ReadmeQuotesTheRealMarkerRunAsItsCsvSaysIt) {
                        "% per frame, " + acc["HDM_mm_01-02_03_120/tracklet"] +
                        "% in\ntracklet mode; CMU 01_01 " +
                        acc["cmu_01_01/per-frame"] + "% per frame"));
+}
+
+TEST(ResultsTest, ReadmesQuoteTheHeadlineAsItsReportSaysIt) {
+  const std::string h = "results/headline.csv";
+  const std::string quote = Cell(h, "hdm05_layout", "hdm05", "acc", 2) +
+                            "% per frame on the real HDM05 take";
+  const std::string cmu =
+      Cell(h, "cmu41", "cmu", "acc", 2) + "% on the real CMU take";
+  EXPECT_THAT(Readme(), MatchesSomewhere(quote));
+  EXPECT_THAT(Readme(), MatchesSomewhere(cmu));
+  EXPECT_THAT(ResultsReadme(), MatchesSomewhere(quote));
+  EXPECT_THAT(ResultsReadme(), MatchesSomewhere(cmu));
 }
 
 }  // namespace
