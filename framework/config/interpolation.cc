@@ -728,10 +728,12 @@ class Engine {
     return ConfigNode::LiteralString(Concatenate(pieces, context));
   }
 
-  /// oc.select: the resolved value at a (relative or absolute) key, or
-  /// nullopt if it does not exist or is `???`.
-  std::optional<ConfigNode> SelectKey(const std::string& key,
-                                      std::string_view node_path) {
+  /// The absolute path segments of a (relative or absolute) key written in
+  /// a resolver argument (oc.select, oc.deprecated); false if a relative key
+  /// climbs above the root.
+  bool KeySegments(const std::string& key,
+                   std::string_view node_path,
+                   std::vector<std::string>* segments) {
     InterpPtr interp;
     try {
       interp = Parser(key).ParseKeyOnly();
@@ -747,10 +749,15 @@ class Engine {
     for (const KeyPart& part : interp->keys) {
       parts.push_back(KeyText(part, context));
     }
+    return AbsoluteSegments(interp->dots, parts, node_path, segments);
+  }
+
+  /// oc.select: the resolved value at a (relative or absolute) key, or
+  /// nullopt if it does not exist or is `???`.
+  std::optional<ConfigNode> SelectKey(const std::string& key,
+                                      std::string_view node_path) {
     std::vector<std::string> segments;
-    if (!AbsoluteSegments(interp->dots, parts, node_path, &segments)) {
-      return std::nullopt;
-    }
+    if (!KeySegments(key, node_path, &segments)) return std::nullopt;
     try {
       const Found found = Lookup(segments);
       if (found.node == nullptr || found.node->IsMissing()) return std::nullopt;
@@ -781,25 +788,8 @@ class Engine {
                             std::string_view node_path,
                             std::string* absolute,
                             std::shared_ptr<ConfigNode>* owner) {
-    InterpPtr interp;
-    try {
-      interp = Parser(key).ParseKeyOnly();
-    } catch (const GrammarError& error) {
-      throw ConfigError(fmt::format(
-          "GrammarParseError: {} in key '{}' (while resolving '{}')",
-          error.message,
-          key,
-          DisplayPath(node_path)));
-    }
-    const Context context{node_path, nullptr};
-    std::vector<std::string> parts;
-    for (const KeyPart& part : interp->keys) {
-      parts.push_back(KeyText(part, context));
-    }
     std::vector<std::string> segments;
-    if (!AbsoluteSegments(interp->dots, parts, node_path, &segments)) {
-      return nullptr;
-    }
+    if (!KeySegments(key, node_path, &segments)) return nullptr;
     const Found found = Lookup(segments);
     *owner = found.owner;
     *absolute = fmt::format("{}", fmt::join(segments, "."));
