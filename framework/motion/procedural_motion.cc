@@ -294,10 +294,17 @@ std::vector<Frame> Squat(const Clip& clip) {
   return Sample(keys, clip);
 }
 
+/// A jump in place or forward, in one of two styles: a tuck (hips and knees
+/// flexed in the air, arms swung up) or a straight "pencil" jump (legs nearly
+/// straight, toes pointed, arms at the sides or swung up). Real captures hold
+/// the straight kind, e.g. CMU 01_01's forward jumps: the whole body upright
+/// and 0.1-0.3 m off the floor for a quarter of a second.
 std::vector<Frame> Jump(const Clip& clip) {
   const double heading = clip.U(-M_PI, M_PI);
   const double height = clip.U(0.1, 0.5);
   const double distance = clip.Coin() ? clip.U(0.0, 1.2) : 0.0;
+  const bool tuck = clip.Coin();
+  const bool arms_up = clip.Coin();
   Frame stand = Standing(clip, heading);
   Frame crouch = stand;
   SetBoth(crouch.angles, kLeftHip, kRightHip, {clip.U(50, 80) * kDeg, 0, 0});
@@ -308,35 +315,59 @@ std::vector<Frame> Jump(const Clip& clip) {
   crouch.angles[kRightShoulder] = {-40 * kDeg, -80 * kDeg, 0};
   Frame takeoff = stand;
   SetBoth(takeoff.angles, kLeftAnkle, kRightAnkle, {40 * kDeg, 0, 0});
-  takeoff.angles[kLeftShoulder] = {clip.U(60, 130) * kDeg, -20 * kDeg, 0};
-  takeoff.angles[kRightShoulder] = takeoff.angles[kLeftShoulder];
+  if (arms_up) {
+    takeoff.angles[kLeftShoulder] = {clip.U(60, 130) * kDeg, -20 * kDeg, 0};
+    takeoff.angles[kRightShoulder] = takeoff.angles[kLeftShoulder];
+  } else {  // arms at the sides, a little forward or back
+    const double swing = clip.U(-30, 30) * kDeg;
+    ArmSwing(takeoff.angles, swing, swing, clip.U(0, 40) * kDeg);
+  }
   Frame air = takeoff;
-  SetBoth(air.angles,
-          kLeftHip,
-          kRightHip,
-          {clip.U(10, 70) * kDeg, clip.U(0, 25) * kDeg, 0});
-  SetBoth(air.angles, kLeftKnee, kRightKnee, {clip.U(20, 100) * kDeg, 0, 0});
-  Keyframes keys;
+  if (tuck) {
+    SetBoth(air.angles,
+            kLeftHip,
+            kRightHip,
+            {clip.U(10, 70) * kDeg, clip.U(0, 25) * kDeg, 0});
+    SetBoth(air.angles, kLeftKnee, kRightKnee, {clip.U(20, 100) * kDeg, 0, 0});
+  } else {
+    SetBoth(air.angles,
+            kLeftHip,
+            kRightHip,
+            {clip.U(-5, 15) * kDeg, clip.U(0, 10) * kDeg, 0});
+    SetBoth(air.angles, kLeftKnee, kRightKnee, {clip.U(0, 25) * kDeg, 0, 0});
+    SetBoth(air.angles, kLeftAnkle, kRightAnkle, {clip.U(20, 60) * kDeg, 0, 0});
+  }
+  // One to three jumps in a row, each over an equal share of the clip, in
+  // the same style (forward hops when `distance` > 0).
+  const int reps = 1 + static_cast<int>(clip.U(0, 3));
   const Eigen::Vector2d forward =
       (stand.root * Eigen::Vector3d(0, -1, 0)).head<2>();
+  Keyframes keys;
   keys.Add(0.0, stand);
-  keys.Add(0.25, crouch);
-  takeoff.xy = forward * distance * 0.1;
-  keys.Add(0.38, takeoff);
-  air.xy = forward * distance * 0.5;
-  air.lift = height;
-  keys.Add(0.5, air);
-  Frame land = crouch;
-  land.xy = forward * distance;
-  keys.Add(0.65, land);
-  Frame end = stand;
-  end.xy = land.xy;
-  keys.Add(0.85, end);
+  for (int r = 0; r < reps; ++r) {
+    const double t0 = r / double(reps), span = 1.0 / reps;
+    const Eigen::Vector2d start = forward * distance * r;
+    Frame from = stand, crouch_r = crouch, takeoff_r = takeoff, air_r = air;
+    from.xy = crouch_r.xy = start;
+    takeoff_r.xy = start + forward * distance * 0.1;
+    air_r.xy = start + forward * distance * 0.5;
+    Frame land = crouch;
+    land.xy = start + forward * distance;
+    Frame end = stand;
+    end.xy = land.xy;
+    keys.Add(t0 + 0.05 * span, from);
+    keys.Add(t0 + 0.25 * span, crouch_r);
+    keys.Add(t0 + 0.38 * span, takeoff_r);
+    keys.Add(t0 + 0.5 * span, air_r);
+    keys.Add(t0 + 0.65 * span, land);
+    keys.Add(t0 + 0.85 * span, end);
+  }
   std::vector<Frame> frames = Sample(keys, clip);
-  // Ballistic flight between take-off (0.38) and landing (0.62).
+  // Ballistic flight between each take-off (0.38) and landing (0.62).
   for (int i = 0; i < clip.num_frames; ++i) {
     const double t = i / double(std::max(1, clip.num_frames - 1));
-    const double s = (t - 0.38) / 0.24;
+    const double local = std::fmod(t * reps, 1.0);
+    const double s = (local - 0.38) / 0.24;
     frames[i].lift = (s > 0 && s < 1) ? 4 * height * s * (1 - s) : 0.0;
   }
   return frames;

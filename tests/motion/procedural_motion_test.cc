@@ -170,6 +170,58 @@ TEST(ProceduralMotion, SquatLowersThePelvis) {
   EXPECT_GT(highest - lowest, 0.2);
 }
 
+/// The lowest point of the body above the floor, from the joints (radius
+/// ignored): > 0 while the whole body is in the air.
+double LowestJointZ(const BodyPose& pose) {
+  const PosedSkeleton s = Pose(pose);
+  double lowest = 1e9;
+  for (int j = 0; j < kNumCoreJoints; ++j)
+    lowest = std::min(lowest, s.global[j].translation().z());
+  return lowest;
+}
+
+/// Flexion of the left knee, degrees (0 = straight leg).
+double LeftKneeFlexionDeg(const BodyPose& pose) {
+  const PosedSkeleton s = Pose(pose);
+  const Eigen::Vector3d thigh =
+      s.global[kLeftHip].translation() - s.global[kLeftKnee].translation();
+  const Eigen::Vector3d shank =
+      s.global[kLeftAnkle].translation() - s.global[kLeftKnee].translation();
+  const double cosine = thigh.normalized().dot(shank.normalized());
+  return 180.0 - std::acos(std::clamp(cosine, -1.0, 1.0)) / kDeg;
+}
+
+// CMU 01_01's forward jumps are straight-bodied hops; the labeller flipped
+// them front to back until jumps covered that style (results/synthetic_world).
+TEST(ProceduralMotion, JumpsIncludeStraightLeggedFlightsAndRepeatedHops) {
+  int straight = 0, tucked = 0, multi_hop = 0;
+  for (int seed = 0; seed < 40; ++seed) {
+    Rng rng(seed);
+    const PoseSequence seq = GenerateProceduralMotion("jump", Body(), {}, rng);
+    const double ground = LowestJointZ(seq.frames.front());
+    int flights = 0;
+    bool airborne = false;
+    double apex = 0, apex_knee = 0;
+    for (const BodyPose& pose : seq.frames) {
+      const double lift = LowestJointZ(pose) - ground;
+      const bool up = lift > 0.05;
+      flights += up && !airborne;
+      airborne = up;
+      if (lift > apex) {
+        apex = lift;
+        apex_knee = LeftKneeFlexionDeg(pose);
+      }
+    }
+    ASSERT_GT(flights, 0) << "seed " << seed;
+    straight += apex_knee < 15;
+    tucked += apex_knee > 40;
+    multi_hop += flights >= 2;
+  }
+  EXPECT_GE(straight, 8);
+  EXPECT_GE(tucked, 5);
+  EXPECT_GT(multi_hop, 12);
+}
+
 /// Yaw of the head relative to the upper spine, degrees: the angle of the
 /// head's forward axis (-Y at rest) about the spine's vertical axis.
 double HeadYawDeg(const BodyPose& pose) {
