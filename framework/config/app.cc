@@ -404,7 +404,10 @@ void PrintConfig(const CliArgs& cli, ConfigNode root) {
     std::fputs(fmt::format("# @package {}\n", cli.package).c_str(), stdout);
     selected = *sub;
   }
-  std::fputs(DumpYaml(selected).c_str(), stdout);
+  // A resolved config prints its strings' values, `${` unescaped (Hydra).
+  DumpOptions options;
+  options.escape_interpolations = !cli.resolve;
+  std::fputs(DumpYaml(selected, options).c_str(), stdout);
 }
 
 void PrintInfo(const CliArgs& cli, const ComposeResult& result) {

@@ -436,7 +436,24 @@ std::string YamlDouble(double value) {
   return FormatDouble(value);
 }
 
-std::string YamlScalar(const ConfigNode& node) {
+/// A string's value as PyYAML writes it (OmegaConf's to_yaml of a resolved
+/// config): plain unless it would read back as another type, `${` as is.
+std::string RawString(const std::string& value) {
+  if (!value.empty() && !NeedsQuotes(value)) {
+    try {
+      const ConfigNode typed = TypePlainScalar(value);
+      if (typed.type() == ConfigNode::Type::kInterpolation ||
+          typed.type() == ConfigNode::Type::kString) {
+        return value;
+      }
+    } catch (const ConfigError&) {
+      // Not a valid plain scalar: quote it.
+    }
+  }
+  return NeedsDoubleQuotes(value) ? DoubleQuote(value) : SingleQuote(value);
+}
+
+std::string YamlScalar(const ConfigNode& node, bool escape_interpolations) {
   switch (node.type()) {
     case ConfigNode::Type::kNull:
       return "null";
@@ -452,6 +469,7 @@ std::string YamlScalar(const ConfigNode& node) {
       if (PlainRoundTrips(node)) return node.text();
       return YamlDouble(node.AsDouble());
     case ConfigNode::Type::kString: {
+      if (!escape_interpolations) return RawString(node.AsString());
       // text() is the escaped source form; fall back to re-escaping the value
       // if it was overridden with something inconsistent.
       std::string source = node.text();
@@ -480,17 +498,20 @@ bool IsBlock(const ConfigNode& node) {
   return node.IsContainer() && node.size() > 0;
 }
 
-void EmitBlock(const ConfigNode& node, int indent, int step, std::string* out);
+void EmitBlock(const ConfigNode& node,
+               int indent,
+               const DumpOptions& options,
+               std::string* out);
 
 /// Emits a list item whose value is a non-empty container: the child block
 /// is emitted one level deeper and its first indentation becomes `- `.
 void EmitNestedItem(const ConfigNode& item,
                     int indent,
-                    int step,
+                    const DumpOptions& options,
                     std::string* out) {
-  const int child_indent = indent + std::max(step, 2);
+  const int child_indent = indent + std::max(options.indent, 2);
   std::string block;
-  EmitBlock(item, child_indent, step, &block);
+  EmitBlock(item, child_indent, options, &block);
   std::string prefix(static_cast<size_t>(indent), ' ');
   prefix += "- ";
   prefix.append(static_cast<size_t>(child_indent - indent - 2), ' ');
@@ -498,8 +519,12 @@ void EmitNestedItem(const ConfigNode& item,
   *out += block.substr(static_cast<size_t>(child_indent));
 }
 
-void EmitBlock(const ConfigNode& node, int indent, int step, std::string* out) {
+void EmitBlock(const ConfigNode& node,
+               int indent,
+               const DumpOptions& options,
+               std::string* out) {
   const std::string pad(static_cast<size_t>(indent), ' ');
+  const bool escape = options.escape_interpolations;
   if (node.IsMap()) {
     for (const auto& [key, child] : node.entries()) {
       // An implicit key is at most 1024 characters (YAML 1.2, 7.4.2; yaml-cpp
@@ -512,22 +537,22 @@ void EmitBlock(const ConfigNode& node, int indent, int step, std::string* out) {
       }
       if (child.IsMap() && child.size() > 0) {
         *out += "\n";
-        EmitBlock(child, indent + step, step, out);
+        EmitBlock(child, indent + options.indent, options, out);
       } else if (child.IsList() && child.size() > 0) {
         // PyYAML style: a sequence under a key is not indented.
         *out += "\n";
-        EmitBlock(child, indent, step, out);
+        EmitBlock(child, indent, options, out);
       } else {
-        *out += " " + YamlScalar(child) + "\n";
+        *out += " " + YamlScalar(child, escape) + "\n";
       }
     }
     return;
   }
   for (const ConfigNode& item : node.items()) {
     if (IsBlock(item)) {
-      EmitNestedItem(item, indent, step, out);
+      EmitNestedItem(item, indent, options, out);
     } else {
-      *out += pad + "- " + YamlScalar(item) + "\n";
+      *out += pad + "- " + YamlScalar(item, escape) + "\n";
     }
   }
 }
@@ -728,10 +753,13 @@ ConfigFile LoadConfigFile(const std::filesystem::path& path) {
 }
 
 std::string DumpYaml(const ConfigNode& node, const DumpOptions& options) {
-  const int step = std::max(options.indent, 1);
-  if (!IsBlock(node)) return YamlScalar(node) + "\n";
+  DumpOptions checked = options;
+  checked.indent = std::max(options.indent, 1);
+  if (!IsBlock(node)) {
+    return YamlScalar(node, options.escape_interpolations) + "\n";
+  }
   std::string out;
-  EmitBlock(node, 0, step, &out);
+  EmitBlock(node, 0, checked, &out);
   return out;
 }
 

@@ -40,6 +40,11 @@ ConfigFile LoadConfigFile(const std::filesystem::path& path);
 
 struct DumpOptions {
   int indent = 2;
+  /// true: strings are written in their source form, a literal `${` as
+  /// `\${`, so the dump loads back as the same config. false: strings are
+  /// written as their values, as OmegaConf's to_yaml prints a resolved
+  /// config (`--cfg job --resolve`); such a dump is for reading, not loading.
+  bool escape_interpolations = true;
 };
 
 /// Dumps a node as YAML (block style; empty containers as `{}`/`[]`), keeping

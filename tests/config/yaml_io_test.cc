@@ -340,6 +340,28 @@ TEST(DumpYaml, QuotesStringsThatWouldBeRetyped) {
             "missing_str: '-'\n");
 }
 
+// OmegaConf's to_yaml of a resolved config (Hydra's `--cfg job --resolve`)
+// prints a string's value: a literal `${` is not escaped.
+TEST(DumpYaml, UnescapedModeWritesStringValuesAsPyYamlDoes) {
+  ConfigNode root;
+  root.Set("literal", ConfigNode::LiteralString("${a}"));
+  root.Set("inside", ConfigNode::LiteralString("x ${a} y"));
+  root.Set("backslash", ConfigNode::LiteralString("\\${a}"));
+  root.Set("one", ConfigNode::LiteralString("1"));
+  root.Set("plain", ConfigNode::LiteralString("hello"));
+  root.Set("n", 3);
+  DumpOptions options;
+  options.escape_interpolations = false;
+  EXPECT_EQ(DumpYaml(root, options),
+            "literal: ${a}\n"
+            "inside: x ${a} y\n"
+            "backslash: \\${a}\n"
+            "one: '1'\n"
+            "plain: hello\n"
+            "n: 3\n");
+  EXPECT_EQ(DumpYaml(root).rfind("literal: \\${a}\n", 0), 0u);
+}
+
 TEST(DumpYaml, RoundTripsAMixedTree) {
   ConfigNode root;
   root.Set("i", 42);

@@ -122,6 +122,26 @@ TEST(Cli, CfgResolvePackageSelectsASubtree) {
   EXPECT_NE(r.out.find("steps: 7"), std::string::npos) << r.out;
 }
 
+// Hydra 1.3: `--cfg job --resolve` prints an escaped interpolation `\${a}`
+// as the literal string `${a}`; without --resolve the source form stays.
+TEST(Cli, CfgResolvePrintsEscapedInterpolationsAsTheirValue) {
+  const auto dir = testing::CreateTestDir();
+  testing::WriteTextFile(dir / "conf",
+                         "config.yaml",
+                         "a: 1\n"
+                         "b: \\${a}\n"
+                         "c: 'x \\${a} y'\n"
+                         "d: ${b}\n");
+  const std::string conf = (dir / "conf").string();
+  const CommandResult resolved =
+      RunSoma(dir, {"-cp", conf, "--cfg", "job", "--resolve"});
+  ASSERT_EQ(resolved.exit_code, 0) << resolved.err;
+  EXPECT_EQ(resolved.out, "a: 1\nb: ${a}\nc: x ${a} y\nd: ${a}\n");
+  const CommandResult source = RunSoma(dir, {"-cp", conf, "--cfg", "job"});
+  ASSERT_EQ(source.exit_code, 0) << source.err;
+  EXPECT_EQ(source.out, "a: 1\nb: \\${a}\nc: x \\${a} y\nd: ${b}\n");
+}
+
 TEST(Cli, InfoDefaultsListsTheTaskGroup) {
   const auto dir = testing::CreateTestDir();
   const CommandResult r =
