@@ -1597,8 +1597,10 @@ ComposeResult Compose(const ComposeRequest& request) {
     if (!o.IsSweep()) continue;
     if (request.mode == RunMode::kRun) {
       throw ConfigError(fmt::format(
-          "Ambiguous value for argument '{}'. To sweep over it, add "
-          "--multirun to your command line",
+          "Ambiguous value for argument '{}'. 1. To use it as a list, use "
+          "key=[value1,value2] 2. To use it as string, quote the value: "
+          "key=\\'value1,value2\\' 3. To sweep over it, add --multirun to "
+          "your command line",
           o.input));
     }
     if (IsHydraKey(o.key)) {

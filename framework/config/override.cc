@@ -1266,8 +1266,16 @@ Parsed EvalFunction(const std::string& name,
   if (name == "float") return EvalCast(CastKind::kFloat, args);
   if (name == "str") return EvalCast(CastKind::kStr, args);
   if (name == "bool") return EvalCast(CastKind::kBool, args);
-  if (name == "interval" || name == "tag" || name == "extend_list") {
-    throw FunctionError(fmt::format("function '{}' is not supported", name));
+  if (name == "interval") {
+    // Hydra's BasicSweeper rejects it the same way; it is for optimising
+    // sweepers (Optuna, Nevergrad), which somalab does not have.
+    throw FunctionError(
+        "BasicSweeper does not support INTERVAL_SWEEP: interval() needs an "
+        "optimising sweeper; sweep a list, choice() or range() instead");
+  }
+  if (name == "tag" || name == "extend_list") {
+    throw FunctionError(fmt::format(
+        "function '{}' is not supported by somalab (Hydra has it)", name));
   }
   throw FunctionError(fmt::format(
       "unknown function '{}' (available: choice, range, glob, sort, shuffle, "
@@ -1320,8 +1328,13 @@ class OverrideParser {
     throw ConfigError(
         fmt::format("Error parsing override '{}': {}", text_, problem));
   }
+  /// ANTLR's wording (what Hydra prints), then the column: "missing ']' at
+  /// '<EOF>' (column 7)".
   [[noreturn]] void FailAt(size_t pos, const std::string& problem) const {
-    Fail(fmt::format("{} at column {}", problem, pos + 1));
+    const std::string at = pos >= text_.size()
+                               ? std::string("'<EOF>'")
+                               : fmt::format("'{}'", text_.substr(pos, 1));
+    Fail(fmt::format("{} at {} (column {})", problem, at, pos + 1));
   }
 
   void Lex(size_t begin);
@@ -1340,16 +1353,17 @@ class OverrideParser {
     return t;
   }
   std::string Describe(const Token& t) const {
-    if (t.type == Tok::kEnd) return "end of input";
+    if (t.type == Tok::kEnd) return "'<EOF>'";
     if (t.type == Tok::kQuoted) return "quoted string";
     return fmt::format("'{}'", TrimWs(t.text));
   }
+  /// ANTLR's "mismatched input" wording (Hydra's), then the column.
   [[noreturn]] void Unexpected(const Token& t,
                                std::string_view expected) const {
-    Fail(fmt::format("unexpected {} at column {} (expected {})",
+    Fail(fmt::format("mismatched input {} expecting {} (column {})",
                      Describe(t),
-                     t.pos + 1,
-                     expected));
+                     expected,
+                     t.pos + 1));
   }
 
   Parsed ParseElement();
@@ -1599,7 +1613,7 @@ Parsed OverrideParser::ParseValue(size_t begin) {
     first = std::move(sweep);
   }
   SkipWsBefore(Tok::kEnd);
-  if (Peek().type != Tok::kEnd) Unexpected(Peek(), "',' or end of input");
+  if (Peek().type != Tok::kEnd) Unexpected(Peek(), "{',', <EOF>}");
   return first;
 }
 
@@ -1693,7 +1707,7 @@ ConfigNode OverrideParser::ParseList() {
       return list;
     }
     if (t.type == Tok::kEnd) FailAt(t.pos, "missing ']'");
-    Unexpected(t, "',' or ']'");
+    Unexpected(t, "{',', ']'}");
   }
 }
 
@@ -1739,7 +1753,7 @@ ConfigNode OverrideParser::ParseDict() {
       return dict;
     }
     if (t.type == Tok::kEnd) FailAt(t.pos, "missing '}'");
-    Unexpected(t, "',' or '}'");
+    Unexpected(t, "{',', '}'}");
   }
 }
 
@@ -1773,7 +1787,7 @@ Parsed OverrideParser::ParseFunction() {
         break;
       }
       if (t.type == Tok::kEnd) FailAt(t.pos, "missing ')'");
-      Unexpected(t, "',' or ')'");
+      Unexpected(t, "{',', ')'}");
     }
   }
   const size_t end = cursor_ > 0 ? tokens_[cursor_ - 1].pos + 1 : text_.size();

@@ -811,9 +811,12 @@ TEST(ComposeStructMode, DictOverrideOfGroupKeyIsAValueOverride) {
 
 TEST(ComposeStructMode, SweepInRunModeIsAmbiguous) {
   const fs::path dir = MakeTree(kValueFiles);
+  // Hydra 1.3's three suggestions, on one line.
   EXPECT_EQ(ComposeError(dir, {"a=1,2"}),
-            "Ambiguous value for argument 'a=1,2'. To sweep over it, add "
-            "--multirun to your command line");
+            "Ambiguous value for argument 'a=1,2'. 1. To use it as a list, use "
+            "key=[value1,value2] 2. To use it as string, quote the value: "
+            "key=\\'value1,value2\\' 3. To sweep over it, add --multirun to "
+            "your command line");
 }
 
 TEST(ComposeStructMode, SweepsAreSkippedAtSweepLevel) {
