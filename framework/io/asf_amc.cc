@@ -2,6 +2,7 @@
 
 #include "framework/core/error.h"
 #include "framework/core/file.h"
+#include "framework/io/line_error.h"
 
 #include <fmt/format.h>
 
@@ -138,7 +139,10 @@ class AsfParser {
       const Line& line = lines_[i];
       const std::string_view keyword = line.words[0];
       if (keyword.front() != ':') {
-        Fail(line.number, "expected a ':section' keyword, got '{}'", keyword);
+        ThrowAtLine(source_,
+                    line.number,
+                    "expected a ':section' keyword, got '{}'",
+                    keyword);
       }
       ++i;
       if (keyword == ":version") {
@@ -165,23 +169,14 @@ class AsfParser {
       }
     }
     const int last_line = lines_.empty() ? 1 : lines_.back().number;
-    if (!saw_bonedata) Fail(last_line, "missing :bonedata section");
-    if (!saw_hierarchy) Fail(last_line, "missing :hierarchy section");
+    if (!saw_bonedata)
+      ThrowAtLine(source_, last_line, "missing :bonedata section");
+    if (!saw_hierarchy)
+      ThrowAtLine(source_, last_line, "missing :hierarchy section");
     return Build();
   }
 
  private:
-  template <typename... Args>
-  [[noreturn]] void Fail(int line,
-                         fmt::format_string<Args...> format,
-                         Args&&... args) const {
-    throw IoError(
-        fmt::format("{}:{}: {}",
-                    source_.string(),
-                    line,
-                    fmt::format(format, std::forward<Args>(args)...)));
-  }
-
   bool AtSection(size_t i) const {
     return i >= lines_.size() || lines_[i].words[0].front() == ':';
   }
@@ -195,21 +190,27 @@ class AsfParser {
                 std::string_view what,
                 bool allow_infinite = false) const {
     if (k >= line.words.size()) {
-      Fail(line.number, "missing {} after '{}'", what, line.words[0]);
+      ThrowAtLine(
+          source_, line.number, "missing {} after '{}'", what, line.words[0]);
     }
     const std::optional<double> value =
         ParseNumber(line.words[k], allow_infinite);
     if (!value)
-      Fail(line.number, "{} is not a number: '{}'", what, line.words[k]);
+      ThrowAtLine(source_,
+                  line.number,
+                  "{} is not a number: '{}'",
+                  what,
+                  line.words[k]);
     return *value;
   }
 
   Eigen::Vector3d Vector(const Line& line, std::string_view what) const {
     if (line.words.size() != 4) {
-      Fail(line.number,
-           "'{}' needs 3 numbers, got {}",
-           line.words[0],
-           line.words.size() - 1);
+      ThrowAtLine(source_,
+                  line.number,
+                  "'{}' needs 3 numbers, got {}",
+                  line.words[0],
+                  line.words.size() - 1);
     }
     return {
         Number(line, 1, what), Number(line, 2, what), Number(line, 3, what)};
@@ -223,24 +224,30 @@ class AsfParser {
     for (; !AtSection(*i); ++*i) {
       const Line& line = lines_[*i];
       if (line.words.size() != 2) {
-        Fail(line.number, "expected '<unit> <value>' in :units");
+        ThrowAtLine(
+            source_, line.number, "expected '<unit> <value>' in :units");
       }
       const std::string key = ToLower(line.words[0]);
       if (key == "length") {
         length_unit_ = Number(line, 1, "the length unit");
-        if (length_unit_ <= 0.0) Fail(line.number, "length unit must be > 0");
+        if (length_unit_ <= 0.0)
+          ThrowAtLine(source_, line.number, "length unit must be > 0");
       } else if (key == "angle") {
         const std::string unit = ToLower(line.words[1]);
         if (unit != "deg" && unit != "rad") {
-          Fail(line.number, "angle unit '{}' is not deg or rad", line.words[1]);
+          ThrowAtLine(source_,
+                      line.number,
+                      "angle unit '{}' is not deg or rad",
+                      line.words[1]);
         }
         degrees_ = unit == "deg";
       } else if (key == "mass") {
         Number(line, 1, "the mass unit");
       } else {
-        Fail(line.number,
-             "unknown unit '{}' (expected mass, length, angle)",
-             line.words[0]);
+        ThrowAtLine(source_,
+                    line.number,
+                    "unknown unit '{}' (expected mass, length, angle)",
+                    line.words[0]);
       }
     }
   }
@@ -254,12 +261,16 @@ class AsfParser {
         for (size_t k = 1; k < line.words.size(); ++k) {
           const std::optional<ChannelType> dof = ParseDof(line.words[k]);
           if (!dof)
-            Fail(line.number, "unknown root channel '{}'", line.words[k]);
+            ThrowAtLine(source_,
+                        line.number,
+                        "unknown root channel '{}'",
+                        line.words[k]);
           root_order_.push_back(*dof);
         }
       } else if (key == "axis") {
         if (line.words.size() != 2 || !IsAxisOrder(line.words[1])) {
-          Fail(line.number, "expected 'axis <order>' such as XYZ");
+          ThrowAtLine(
+              source_, line.number, "expected 'axis <order>' such as XYZ");
         }
         root_axis_order_ = std::string(line.words[1]);
       } else if (key == "position") {
@@ -267,7 +278,8 @@ class AsfParser {
       } else if (key == "orientation") {
         root_orientation_ = Vector(line, "a root orientation");
       } else {
-        Fail(line.number, "unknown :root keyword '{}'", line.words[0]);
+        ThrowAtLine(
+            source_, line.number, "unknown :root keyword '{}'", line.words[0]);
       }
     }
   }
@@ -276,9 +288,10 @@ class AsfParser {
     while (!AtSection(*i)) {
       const Line& begin = lines_[*i];
       if (begin.words[0] != "begin" || begin.words.size() != 1) {
-        Fail(begin.number,
-             "expected 'begin' in :bonedata, got '{}'",
-             begin.words[0]);
+        ThrowAtLine(source_,
+                    begin.number,
+                    "expected 'begin' in :bonedata, got '{}'",
+                    begin.words[0]);
       }
       RawBone bone;
       bone.line = begin.number;
@@ -294,23 +307,30 @@ class AsfParser {
         }
         ParseBoneLine(line, key, &bone, i);
       }
-      if (!ended) Fail(begin.number, "bone block without 'end'");
-      if (bone.name.empty()) Fail(begin.number, "bone without a name");
+      if (!ended)
+        ThrowAtLine(source_, begin.number, "bone block without 'end'");
+      if (bone.name.empty())
+        ThrowAtLine(source_, begin.number, "bone without a name");
       if (!bone.direction)
-        Fail(begin.number, "bone '{}' has no direction", bone.name);
+        ThrowAtLine(
+            source_, begin.number, "bone '{}' has no direction", bone.name);
       if (!bone.length)
-        Fail(begin.number, "bone '{}' has no length", bone.name);
-      if (!bone.axis) Fail(begin.number, "bone '{}' has no axis", bone.name);
+        ThrowAtLine(
+            source_, begin.number, "bone '{}' has no length", bone.name);
+      if (!bone.axis)
+        ThrowAtLine(source_, begin.number, "bone '{}' has no axis", bone.name);
       if (!bone.limits.empty() && bone.limits.size() != bone.dofs.size()) {
-        Fail(bone.dof_line,
-             "bone '{}' has {} dofs but {} limits",
-             bone.name,
-             bone.dofs.size(),
-             bone.limits.size());
+        ThrowAtLine(source_,
+                    bone.dof_line,
+                    "bone '{}' has {} dofs but {} limits",
+                    bone.name,
+                    bone.dofs.size(),
+                    bone.limits.size());
       }
       const std::string key = ToLower(bone.name);
       if (key == "root" || bone_index_.count(key) > 0) {
-        Fail(begin.number, "duplicate bone name '{}'", bone.name);
+        ThrowAtLine(
+            source_, begin.number, "duplicate bone name '{}'", bone.name);
       }
       bone_index_[key] = static_cast<int>(bones_.size());
       bones_.push_back(std::move(bone));
@@ -324,19 +344,23 @@ class AsfParser {
     if (key == "id") {
       Number(line, 1, "the bone id");
     } else if (key == "name") {
-      if (line.words.size() != 2) Fail(line.number, "expected 'name <bone>'");
+      if (line.words.size() != 2)
+        ThrowAtLine(source_, line.number, "expected 'name <bone>'");
       bone->name = std::string(line.words[1]);
     } else if (key == "direction") {
       Eigen::Vector3d direction = Vector(line, "a direction component");
       bone->direction = direction;
     } else if (key == "length") {
       if (line.words.size() != 2)
-        Fail(line.number, "expected 'length <value>'");
+        ThrowAtLine(source_, line.number, "expected 'length <value>'");
       bone->length = Number(line, 1, "the length");
-      if (*bone->length < 0.0) Fail(line.number, "negative bone length");
+      if (*bone->length < 0.0)
+        ThrowAtLine(source_, line.number, "negative bone length");
     } else if (key == "axis") {
       if (line.words.size() != 5 || !IsAxisOrder(line.words[4])) {
-        Fail(line.number, "expected 'axis <ax> <ay> <az> <order>' such as XYZ");
+        ThrowAtLine(source_,
+                    line.number,
+                    "expected 'axis <ax> <ay> <az> <order>' such as XYZ");
       }
       bone->axis = Eigen::Vector3d(Number(line, 1, "an axis angle"),
                                    Number(line, 2, "an axis angle"),
@@ -347,24 +371,31 @@ class AsfParser {
       for (size_t k = 1; k < line.words.size(); ++k) {
         const std::optional<ChannelType> dof = ParseDof(line.words[k]);
         if (!dof) {
-          Fail(line.number,
-               "unknown dof '{}' (expected rx ry rz; tx ty tz l on bones are "
-               "not supported)",
-               line.words[k]);
+          ThrowAtLine(
+              source_,
+              line.number,
+              "unknown dof '{}' (expected rx ry rz; tx ty tz l on bones are "
+              "not supported)",
+              line.words[k]);
         }
         if (!IsRotation(*dof)) {
-          Fail(line.number,
-               "translational dof '{}' on bone '{}' is not supported",
-               line.words[k],
-               bone->name);
+          ThrowAtLine(source_,
+                      line.number,
+                      "translational dof '{}' on bone '{}' is not supported",
+                      line.words[k],
+                      bone->name);
         }
         bone->dofs.push_back(*dof);
       }
       if (bone->dofs.empty() || bone->dofs.size() > 3) {
-        Fail(line.number, "expected 1 to 3 dofs, got {}", bone->dofs.size());
+        ThrowAtLine(source_,
+                    line.number,
+                    "expected 1 to 3 dofs, got {}",
+                    bone->dofs.size());
       }
     } else if (key == "limits") {
-      if (bone->dofs.empty()) Fail(line.number, "limits before dof");
+      if (bone->dofs.empty())
+        ThrowAtLine(source_, line.number, "limits before dof");
       // (lo hi) pairs, one per dof, usually one per line.
       std::vector<double> values;
       const Line* current = &line;
@@ -374,11 +405,13 @@ class AsfParser {
           const bool more = *i < lines_.size() && !AtSection(*i) &&
                             ParseNumber(lines_[*i].words[0], true).has_value();
           if (!more) {
-            Fail(current->number,
-                 "bone '{}' needs {} limit pairs (one per dof), got {} numbers",
-                 bone->name,
-                 bone->dofs.size(),
-                 values.size());
+            ThrowAtLine(
+                source_,
+                current->number,
+                "bone '{}' needs {} limit pairs (one per dof), got {} numbers",
+                bone->name,
+                bone->dofs.size(),
+                values.size());
           }
           current = &lines_[(*i)++];
           k = 0;
@@ -388,9 +421,10 @@ class AsfParser {
             Number(*current, k++, "a limit", /*allow_infinite=*/true));
       }
       if (k < current->words.size()) {
-        Fail(current->number,
-             "extra value '{}' after the limits",
-             current->words[k]);
+        ThrowAtLine(source_,
+                    current->number,
+                    "extra value '{}' after the limits",
+                    current->words[k]);
       }
       for (size_t d = 0; d < bone->dofs.size(); ++d) {
         bone->limits.emplace_back(values[2 * d], values[2 * d + 1]);
@@ -398,28 +432,38 @@ class AsfParser {
     } else if (key == "bodymass" || key == "cofmass") {
       Number(line, 1, key);
     } else {
-      Fail(line.number, "unknown :bonedata keyword '{}'", line.words[0]);
+      ThrowAtLine(source_,
+                  line.number,
+                  "unknown :bonedata keyword '{}'",
+                  line.words[0]);
     }
   }
 
   void ParseHierarchy(size_t* i, int section_line) {
     if (AtSection(*i) || lines_[*i].words[0] != "begin") {
-      Fail(section_line, ":hierarchy must start with 'begin'");
+      ThrowAtLine(source_, section_line, ":hierarchy must start with 'begin'");
     }
     ++*i;
     while (true) {
-      if (AtSection(*i)) Fail(section_line, ":hierarchy without 'end'");
+      if (AtSection(*i))
+        ThrowAtLine(source_, section_line, ":hierarchy without 'end'");
       const Line& line = lines_[(*i)++];
       if (line.words[0] == "end") break;
       if (line.words.size() < 2) {
-        Fail(line.number, "expected '<parent> <child> ...' in :hierarchy");
+        ThrowAtLine(source_,
+                    line.number,
+                    "expected '<parent> <child> ...' in :hierarchy");
       }
       const int parent = BoneId(line, line.words[0]);
       for (size_t k = 1; k < line.words.size(); ++k) {
         const int child = BoneId(line, line.words[k]);
-        if (child == kRoot) Fail(line.number, "the root cannot be a child");
+        if (child == kRoot)
+          ThrowAtLine(source_, line.number, "the root cannot be a child");
         if (parent_of_.count(child) > 0) {
-          Fail(line.number, "bone '{}' has a second parent", line.words[k]);
+          ThrowAtLine(source_,
+                      line.number,
+                      "bone '{}' has a second parent",
+                      line.words[k]);
         }
         parent_of_[child] = parent;
         children_[parent].push_back(child);
@@ -432,7 +476,8 @@ class AsfParser {
     if (key == "root") return kRoot;
     const auto it = bone_index_.find(key);
     if (it == bone_index_.end()) {
-      Fail(line.number, "unknown bone '{}' in :hierarchy", name);
+      ThrowAtLine(
+          source_, line.number, "unknown bone '{}' in :hierarchy", name);
     }
     return it->second;
   }
@@ -462,9 +507,10 @@ class AsfParser {
 
     for (size_t b = 0; b < bones_.size(); ++b) {
       if (skeleton.Find(bones_[b].name) < 0) {
-        Fail(bones_[b].line,
-             "bone '{}' is not connected to the root in :hierarchy",
-             bones_[b].name);
+        ThrowAtLine(source_,
+                    bones_[b].line,
+                    "bone '{}' is not connected to the root in :hierarchy",
+                    bones_[b].name);
       }
     }
     skeleton.Validate();
@@ -488,7 +534,8 @@ class AsfParser {
     const double norm = bone.direction->norm();
     if (norm == 0.0) {
       if (*bone.length != 0.0) {
-        Fail(bone.line, "bone '{}' has a zero direction", bone.name);
+        ThrowAtLine(
+            source_, bone.line, "bone '{}' has a zero direction", bone.name);
       }
       return Eigen::Vector3d::Zero();
     }
@@ -502,7 +549,8 @@ class AsfParser {
     // Real skeletons are < 50 deep; this bounds the recursion on bad input.
     constexpr int kMaxDepth = 1000;
     if (depth > kMaxDepth) {
-      Fail(bones_[bone].line, "bone chain deeper than {}", kMaxDepth);
+      ThrowAtLine(
+          source_, bones_[bone].line, "bone chain deeper than {}", kMaxDepth);
     }
     const Eigen::Vector3d tip = bone == kRoot ? Eigen::Vector3d::Zero()
                                               : BoneVector(bones_[bone], scale);
@@ -512,10 +560,11 @@ class AsfParser {
         const auto clash =
             bone_index_.find(ToLower(bones_[bone].name + "_end"));
         if (clash != bone_index_.end()) {
-          Fail(bones_[clash->second].line,
-               "bone '{}_end' clashes with the tip joint of bone '{}'",
-               bones_[bone].name,
-               bones_[bone].name);
+          ThrowAtLine(source_,
+                      bones_[clash->second].line,
+                      "bone '{}_end' clashes with the tip joint of bone '{}'",
+                      bones_[bone].name,
+                      bones_[bone].name);
         }
         AddJoint(skeleton,
                  bones_[bone].name + "_end",
@@ -630,7 +679,7 @@ class AmcParser {
         } else if (key == ":radians") {
           degrees_ = false;
         } else {
-          Fail(line.number, "unknown AMC header '{}'", first);
+          ThrowAtLine(source_, line.number, "unknown AMC header '{}'", first);
         }
         continue;
       }
@@ -641,10 +690,11 @@ class AmcParser {
           end == first.data() + first.size()) {
         if (in_frame_) FinishFrame(&clip);
         if (in_frame_ && frame_number != frame_number_ + 1) {
-          Fail(line.number,
-               "frame number {} follows {}; expected consecutive frames",
-               frame_number,
-               frame_number_);
+          ThrowAtLine(source_,
+                      line.number,
+                      "frame number {} follows {}; expected consecutive frames",
+                      frame_number,
+                      frame_number_);
         }
         in_frame_ = true;
         frame_number_ = frame_number;
@@ -652,7 +702,8 @@ class AmcParser {
         continue;
       }
       if (!in_frame_) {
-        Fail(line.number, "'{}' before the first frame number", first);
+        ThrowAtLine(
+            source_, line.number, "'{}' before the first frame number", first);
       }
       ParseBoneValues(line);
     }
@@ -662,39 +713,31 @@ class AmcParser {
   }
 
  private:
-  template <typename... Args>
-  [[noreturn]] void Fail(int line,
-                         fmt::format_string<Args...> format,
-                         Args&&... args) const {
-    throw IoError(
-        fmt::format("{}:{}: {}",
-                    source_.string(),
-                    line,
-                    fmt::format(format, std::forward<Args>(args)...)));
-  }
-
   void ParseBoneValues(const Line& line) {
     const auto it = joint_index_.find(ToLower(line.words[0]));
     if (it == joint_index_.end()) {
-      Fail(line.number,
-           "unknown bone '{}' (not a bone with dofs in {})",
-           line.words[0],
-           asf_.source_path);
+      ThrowAtLine(source_,
+                  line.number,
+                  "unknown bone '{}' (not a bone with dofs in {})",
+                  line.words[0],
+                  asf_.source_path);
     }
     const int joint = it->second;
     const std::vector<Channel>& channels = asf_.skeleton.channels[joint];
     if (line.words.size() - 1 != channels.size()) {
-      Fail(line.number,
-           "bone '{}' has {} values, expected {} (its dofs)",
-           line.words[0],
-           line.words.size() - 1,
-           channels.size());
+      ThrowAtLine(source_,
+                  line.number,
+                  "bone '{}' has {} values, expected {} (its dofs)",
+                  line.words[0],
+                  line.words.size() - 1,
+                  channels.size());
     }
     if (seen_[joint]) {
-      Fail(line.number,
-           "bone '{}' appears twice in frame {}",
-           line.words[0],
-           frame_number_);
+      ThrowAtLine(source_,
+                  line.number,
+                  "bone '{}' appears twice in frame {}",
+                  line.words[0],
+                  frame_number_);
     }
     seen_[joint] = true;
     std::vector<double>& values = values_[joint];
@@ -702,11 +745,12 @@ class AmcParser {
     for (size_t k = 0; k < channels.size(); ++k) {
       const std::optional<double> value = ParseNumber(line.words[k + 1], false);
       if (!value) {
-        Fail(line.number,
-             "value {} of bone '{}' is not a number: '{}'",
-             k + 1,
-             line.words[0],
-             line.words[k + 1]);
+        ThrowAtLine(source_,
+                    line.number,
+                    "value {} of bone '{}' is not a number: '{}'",
+                    k + 1,
+                    line.words[0],
+                    line.words[k + 1]);
       }
       values[k] = *value;
     }
@@ -723,10 +767,11 @@ class AmcParser {
       if (channels.empty()) continue;
       if (!seen_[j]) {
         if (fully_specified_) {
-          Fail(frame_line_,
-               "frame {} lacks bone '{}' (file is :FULLY-SPECIFIED)",
-               frame_number_,
-               skeleton.names[j]);
+          ThrowAtLine(source_,
+                      frame_line_,
+                      "frame {} lacks bone '{}' (file is :FULLY-SPECIFIED)",
+                      frame_number_,
+                      skeleton.names[j]);
         }
         values_[j].assign(channels.size(), 0.0);
       }

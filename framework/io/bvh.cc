@@ -2,6 +2,7 @@
 
 #include "framework/core/error.h"
 #include "framework/core/file.h"
+#include "framework/io/line_error.h"
 
 #include <fmt/format.h>
 
@@ -109,18 +110,24 @@ class BvhParser {
     ExpectKeyword("HIERARCHY");
     const Token root = Next("ROOT");
     if (root.text != "ROOT")
-      Fail(root.line, "expected ROOT, got '{}'", root.text);
+      ThrowAtLine(source_, root.line, "expected ROOT, got '{}'", root.text);
     ParseJoint(-1, root.line);
     if (pos_ < tokens_.size()) {
       const Token& extra = tokens_[pos_];
       if (extra.text == "ROOT") {
-        Fail(extra.line,
-             "a second ROOT; multi-skeleton BVH files are not supported");
+        ThrowAtLine(
+            source_,
+            extra.line,
+            "a second ROOT; multi-skeleton BVH files are not supported");
       }
-      Fail(extra.line, "unexpected '{}' after the ROOT block", extra.text);
+      ThrowAtLine(source_,
+                  extra.line,
+                  "unexpected '{}' after the ROOT block",
+                  extra.text);
     }
     if (motion_line < 0) {
-      Fail(static_cast<int>(lines_.size()), "missing MOTION section");
+      ThrowAtLine(
+          source_, static_cast<int>(lines_.size()), "missing MOTION section");
     }
     MotionClip clip = BuildSkeleton();
     ParseMotion(motion_line, clip);
@@ -129,17 +136,6 @@ class BvhParser {
   }
 
  private:
-  template <typename... Args>
-  [[noreturn]] void Fail(int line,
-                         fmt::format_string<Args...> format,
-                         Args&&... args) const {
-    throw IoError(
-        fmt::format("{}:{}: {}",
-                    source_.string(),
-                    line,
-                    fmt::format(format, std::forward<Args>(args)...)));
-  }
-
   // Tokenizes every line before the MOTION line; returns the index of the
   // MOTION line (0-based) or -1.
   int TokenizeHierarchy() {
@@ -147,9 +143,10 @@ class BvhParser {
       const std::vector<std::string_view> words = SplitWords(lines_[i]);
       if (!words.empty() && words[0] == "MOTION") {
         if (words.size() > 1) {
-          Fail(static_cast<int>(i) + 1,
-               "unexpected '{}' after MOTION",
-               words[1]);
+          ThrowAtLine(source_,
+                      static_cast<int>(i) + 1,
+                      "unexpected '{}' after MOTION",
+                      words[1]);
         }
         return static_cast<int>(i);
       }
@@ -164,7 +161,10 @@ class BvhParser {
 
   Token Next(std::string_view expected) {
     if (pos_ >= tokens_.size()) {
-      Fail(LastLine(), "unexpected end of HIERARCHY, expected {}", expected);
+      ThrowAtLine(source_,
+                  LastLine(),
+                  "unexpected end of HIERARCHY, expected {}",
+                  expected);
     }
     return tokens_[pos_++];
   }
@@ -172,7 +172,8 @@ class BvhParser {
   void ExpectKeyword(std::string_view keyword) {
     const Token token = Next(keyword);
     if (token.text != keyword) {
-      Fail(token.line, "expected '{}', got '{}'", keyword, token.text);
+      ThrowAtLine(
+          source_, token.line, "expected '{}', got '{}'", keyword, token.text);
     }
   }
 
@@ -180,7 +181,11 @@ class BvhParser {
     const Token token = Next(what);
     const std::optional<double> value = ParseNumber(token.text);
     if (!value)
-      Fail(token.line, "expected {} (a number), got '{}'", what, token.text);
+      ThrowAtLine(source_,
+                  token.line,
+                  "expected {} (a number), got '{}'",
+                  what,
+                  token.text);
     return *value;
   }
 
@@ -196,7 +201,8 @@ class BvhParser {
     // Real skeletons are < 50 deep; this bounds the recursion on bad input.
     constexpr int kMaxDepth = 1000;
     if (depth > kMaxDepth) {
-      Fail(keyword_line, "joints nested deeper than {}", kMaxDepth);
+      ThrowAtLine(
+          source_, keyword_line, "joints nested deeper than {}", kMaxDepth);
     }
     std::string name;
     while (pos_ < tokens_.size() && tokens_[pos_].line == keyword_line &&
@@ -204,7 +210,8 @@ class BvhParser {
       if (!name.empty()) name += ' ';
       name += tokens_[pos_++].text;
     }
-    if (name.empty()) Fail(keyword_line, "joint without a name");
+    if (name.empty())
+      ThrowAtLine(source_, keyword_line, "joint without a name");
     ExpectKeyword("{");
     const int index = static_cast<int>(joints_.size());
     joints_.push_back({name, parent, keyword_line, std::nullopt, {}, 0});
@@ -214,36 +221,45 @@ class BvhParser {
       if (token.text == "}") break;
       if (token.text == "OFFSET") {
         if (joints_[index].offset) {
-          Fail(token.line, "joint '{}' has a second OFFSET", name);
+          ThrowAtLine(
+              source_, token.line, "joint '{}' has a second OFFSET", name);
         }
         joints_[index].offset = ParseOffset();
       } else if (token.text == "CHANNELS") {
         if (!joints_[index].channels.empty()) {
-          Fail(token.line, "joint '{}' has a second CHANNELS line", name);
+          ThrowAtLine(source_,
+                      token.line,
+                      "joint '{}' has a second CHANNELS line",
+                      name);
         }
         const double count = NextNumber("the channel count");
         if (count < 0 || count > 6 || count != std::floor(count)) {
-          Fail(token.line,
-               "channel count {} of joint '{}' not in 0..6",
-               count,
-               name);
+          ThrowAtLine(source_,
+                      token.line,
+                      "channel count {} of joint '{}' not in 0..6",
+                      count,
+                      name);
         }
         for (int k = 0; k < static_cast<int>(count); ++k) {
           const Token channel = Next("a channel name");
           const std::optional<ChannelType> type = ParseChannel(channel.text);
           if (!type) {
-            Fail(channel.line,
-                 "unknown channel '{}' of joint '{}' (expected Xposition .. "
-                 "Zrotation)",
-                 channel.text,
-                 name);
+            ThrowAtLine(
+                source_,
+                channel.line,
+                "unknown channel '{}' of joint '{}' (expected Xposition .. "
+                "Zrotation)",
+                channel.text,
+                name);
           }
           if (parent >= 0 && !IsRotation(*type)) {
-            Fail(channel.line,
-                 "joint '{}' has a {} channel; only the ROOT may translate "
-                 "(unsupported)",
-                 name,
-                 channel.text);
+            ThrowAtLine(
+                source_,
+                channel.line,
+                "joint '{}' has a {} channel; only the ROOT may translate "
+                "(unsupported)",
+                name,
+                channel.text);
           }
           joints_[index].channels.push_back(*type);
         }
@@ -252,15 +268,22 @@ class BvhParser {
       } else if (token.text == "End") {
         const Token site = Next("Site");
         if (site.text != "Site")
-          Fail(site.line, "expected 'End Site', got 'End {}'", site.text);
+          ThrowAtLine(source_,
+                      site.line,
+                      "expected 'End Site', got 'End {}'",
+                      site.text);
         ++end_sites;
         ParseEndSite(index, end_sites, site.line);
       } else {
-        Fail(token.line, "unexpected '{}' in joint '{}'", token.text, name);
+        ThrowAtLine(source_,
+                    token.line,
+                    "unexpected '{}' in joint '{}'",
+                    token.text,
+                    name);
       }
     }
     if (!joints_[index].offset) {
-      Fail(keyword_line, "joint '{}' has no OFFSET", name);
+      ThrowAtLine(source_, keyword_line, "joint '{}' has no OFFSET", name);
     }
   }
 
@@ -275,14 +298,18 @@ class BvhParser {
       if (token.text == "OFFSET" && !joint.offset) {
         joint.offset = ParseOffset();
       } else {
-        Fail(token.line,
-             "unexpected '{}' in End Site of '{}'",
-             token.text,
-             joints_[parent].name);
+        ThrowAtLine(source_,
+                    token.line,
+                    "unexpected '{}' in End Site of '{}'",
+                    token.text,
+                    joints_[parent].name);
       }
     }
     if (!joint.offset)
-      Fail(line, "End Site of '{}' has no OFFSET", joints_[parent].name);
+      ThrowAtLine(source_,
+                  line,
+                  "End Site of '{}' has no OFFSET",
+                  joints_[parent].name);
     joints_.push_back(std::move(joint));
   }
 
@@ -298,7 +325,7 @@ class BvhParser {
     for (size_t j = 0; j < joints_.size(); ++j) {
       RawJoint& raw = joints_[j];
       if (skeleton.Find(raw.name) >= 0) {
-        Fail(raw.line, "duplicate joint name '{}'", raw.name);
+        ThrowAtLine(source_, raw.line, "duplicate joint name '{}'", raw.name);
       }
       skeleton.names.push_back(raw.name);
       skeleton.parents.push_back(raw.parent);
@@ -330,26 +357,31 @@ class BvhParser {
     std::vector<std::string_view> words;
     // Frames: N
     if (!NextLine(&i, &words))
-      Fail(motion_line + 1, "missing 'Frames:' after MOTION");
+      ThrowAtLine(source_, motion_line + 1, "missing 'Frames:' after MOTION");
     const int frames_line = static_cast<int>(i) + 1;
     std::optional<double> frames;
     if (words[0] == "Frames:" && words.size() == 2)
       frames = ParseNumber(words[1]);
     if (!frames || *frames < 0 || *frames != std::floor(*frames)) {
-      Fail(frames_line, "expected 'Frames: <count>', got '{}'", lines_[i]);
+      ThrowAtLine(source_,
+                  frames_line,
+                  "expected 'Frames: <count>', got '{}'",
+                  lines_[i]);
     }
     const int num_frames = static_cast<int>(*frames);
     ++i;
     // Frame Time: dt
-    if (!NextLine(&i, &words)) Fail(frames_line, "missing 'Frame Time:'");
+    if (!NextLine(&i, &words))
+      ThrowAtLine(source_, frames_line, "missing 'Frame Time:'");
     std::optional<double> frame_time;
     if (words.size() == 3 && words[0] == "Frame" && words[1] == "Time:") {
       frame_time = ParseNumber(words[2]);
     }
     if (!frame_time || *frame_time <= 0.0) {
-      Fail(static_cast<int>(i) + 1,
-           "expected 'Frame Time: <seconds>' (positive), got '{}'",
-           lines_[i]);
+      ThrowAtLine(source_,
+                  static_cast<int>(i) + 1,
+                  "expected 'Frame Time: <seconds>' (positive), got '{}'",
+                  lines_[i]);
     }
     double rate = 1.0 / *frame_time;
     if (std::abs(rate - std::round(rate)) < 0.005) rate = std::round(rate);
@@ -367,26 +399,29 @@ class BvhParser {
     while (NextLine(&i, &words)) {
       const int line = static_cast<int>(i) + 1;
       if (frame == num_frames) {
-        Fail(line,
-             "more frame lines than 'Frames: {}' (line {}) announces",
-             num_frames,
-             frames_line);
+        ThrowAtLine(source_,
+                    line,
+                    "more frame lines than 'Frames: {}' (line {}) announces",
+                    num_frames,
+                    frames_line);
       }
       if (static_cast<int>(words.size()) != num_values_) {
-        Fail(line,
-             "frame {} has {} values, expected {} (one per channel)",
-             frame,
-             words.size(),
-             num_values_);
+        ThrowAtLine(source_,
+                    line,
+                    "frame {} has {} values, expected {} (one per channel)",
+                    frame,
+                    words.size(),
+                    num_values_);
       }
       for (int k = 0; k < num_values_; ++k) {
         const std::optional<double> value = ParseNumber(words[k]);
         if (!value) {
-          Fail(line,
-               "frame {} value {} is not a number: '{}'",
-               frame,
-               k + 1,
-               words[k]);
+          ThrowAtLine(source_,
+                      line,
+                      "frame {} value {} is not a number: '{}'",
+                      frame,
+                      k + 1,
+                      words[k]);
         }
         values[k] = *value;
       }
@@ -413,11 +448,12 @@ class BvhParser {
       ++i;
     }
     if (frame < num_frames) {
-      Fail(static_cast<int>(lines_.size()),
-           "file ends after {} of {} frames ('Frames:' at line {})",
-           frame,
-           num_frames,
-           frames_line);
+      ThrowAtLine(source_,
+                  static_cast<int>(lines_.size()),
+                  "file ends after {} of {} frames ('Frames:' at line {})",
+                  frame,
+                  num_frames,
+                  frames_line);
     }
   }
 
