@@ -1,0 +1,311 @@
+#include "framework/view/view_capture.h"
+
+#include "framework/body/marker_layout.h"
+#include "framework/core/error.h"
+#include "framework/io/c3d.h"
+#include "framework/io/mocap_dataset.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <limits>
+#include <map>
+#include <set>
+
+namespace soma {
+namespace {
+
+namespace fs = std::filesystem;
+
+/// Points of one frame (metres) with a label name each ("" = null).
+struct LabeledPoints {
+  std::vector<Eigen::Vector3d> points;
+  std::vector<std::string> labels;
+  std::vector<int> columns;  // input column (track id), -1 unknown
+  std::vector<float> confidences;
+};
+
+/// A C3D column label as a class name: canonical marker name, or "" (null)
+/// for unlabelled columns (`*12`, empty).
+std::string ClassOfColumn(const std::string& label) {
+  const std::string canonical = CanonicalMarkerLabel(label);
+  if (canonical.empty() || canonical[0] == '*') return "";
+  return canonical;
+}
+
+bool IsPresent(const C3dData& c3d, int t, int k) {
+  if (!c3d.valid(t, k)) return false;
+  const Eigen::Vector3f p = c3d.Point(t, k);
+  return p.allFinite() && !(p.array() == 0.0f).all();
+}
+
+/// Per frame: the present points of a C3D and their column classes.
+std::vector<LabeledPoints> C3dPoints(const C3dData& c3d) {
+  const double to_metres = c3d.MetresPerUnit();
+  std::vector<std::string> classes(c3d.num_points);
+  for (int k = 0; k < c3d.num_points; ++k) {
+    classes[k] = k < static_cast<int>(c3d.labels.size())
+                     ? ClassOfColumn(c3d.labels[k])
+                     : "";
+  }
+  std::vector<LabeledPoints> frames(c3d.num_frames);
+  for (int t = 0; t < c3d.num_frames; ++t) {
+    for (int k = 0; k < c3d.num_points; ++k) {
+      if (!IsPresent(c3d, t, k)) continue;
+      frames[t].points.push_back(c3d.Point(t, k).cast<double>() * to_metres);
+      frames[t].labels.push_back(classes[k]);
+      frames[t].columns.push_back(k);
+    }
+  }
+  return frames;
+}
+
+/// A `soma corrupt` ground truth: points from `<stem>.c3d`, per-frame labels
+/// from `<stem>.h5`; or a labelled C3D.
+std::vector<LabeledPoints> ReadTruth(const fs::path& path) {
+  if (path.extension() == ".c3d") return C3dPoints(ReadC3d(path));
+  if (path.extension() != ".h5") {
+    throw IoError(fmt::format(
+        "{}: ground truth must be a soma corrupt .h5 (with its .c3d) or a "
+        "labelled .c3d",
+        path.string()));
+  }
+  fs::path c3d_path = path;
+  c3d_path.replace_extension(".c3d");
+  if (!fs::exists(c3d_path)) {
+    throw IoError(fmt::format(
+        "{}: ground truth needs its corrupted capture {} beside it (as soma "
+        "corrupt writes them)",
+        path.string(),
+        c3d_path.string()));
+  }
+  const C3dData c3d = ReadC3d(c3d_path);
+  const DatasetReader reader(path);
+  const DatasetInfo& info = reader.info();
+  if (reader.num_frames() != c3d.num_frames ||
+      info.num_points != c3d.num_points) {
+    throw IoError(fmt::format(
+        "{}: ground truth has {} frames x {} columns but {} has {} x {}",
+        path.string(),
+        reader.num_frames(),
+        info.num_points,
+        c3d_path.string(),
+        c3d.num_frames,
+        c3d.num_points));
+  }
+  LabeledFrames gt;
+  reader.Read(0, reader.num_frames(), &gt);
+  const double to_metres = c3d.MetresPerUnit();
+  std::vector<LabeledPoints> frames(c3d.num_frames);
+  for (int t = 0; t < c3d.num_frames; ++t) {
+    const int16_t* ids = gt.frame_labels(t);
+    for (int k = 0; k < c3d.num_points; ++k) {
+      if (!IsPresent(c3d, t, k)) continue;
+      frames[t].points.push_back(c3d.Point(t, k).cast<double>() * to_metres);
+      frames[t].labels.push_back(
+          ids[k] < info.num_labels() ? info.labels[ids[k]] : "");
+      frames[t].columns.push_back(k);
+    }
+  }
+  return frames;
+}
+
+/// A `soma label` sidecar: per frame its non-padding points, labels,
+/// confidences and input columns.
+std::vector<LabeledPoints> ReadSidecar(const fs::path& path) {
+  const DatasetReader reader(path);
+  const DatasetInfo& info = reader.info();
+  LabeledFrames data;
+  reader.Read(0, reader.num_frames(), &data);
+  const std::vector<float> confidence = reader.ReadPointArray("confidence");
+  const std::vector<float> column = reader.ReadPointArray("column");
+  const int N = info.num_points;
+  std::vector<LabeledPoints> frames(reader.num_frames());
+  for (int64_t t = 0; t < reader.num_frames(); ++t) {
+    const float* p = data.frame_points(t);
+    const int16_t* ids = data.frame_labels(t);
+    for (int n = 0; n < N; ++n) {
+      const size_t i = static_cast<size_t>(t) * N + n;
+      if (column[i] < 0) continue;  // padding
+      frames[t].points.emplace_back(p[3 * n], p[3 * n + 1], p[3 * n + 2]);
+      frames[t].labels.push_back(ids[n] < info.num_labels()
+                                     ? CanonicalMarkerLabel(info.labels[ids[n]])
+                                     : "");
+      frames[t].columns.push_back(static_cast<int>(column[i]));
+      frames[t].confidences.push_back(confidence[i]);
+    }
+  }
+  return frames;
+}
+
+/// The index of the one point of `candidates` within `tolerance` (max
+/// coordinate difference) of `x`; -1 when none or several are.
+int UniqueMatch(const Eigen::Vector3d& x,
+                const std::vector<Eigen::Vector3d>& candidates,
+                double tolerance) {
+  int found = -1;
+  for (size_t j = 0; j < candidates.size(); ++j) {
+    if ((candidates[j] - x).cwiseAbs().maxCoeff() <= tolerance) {
+      if (found >= 0) return -1;
+      found = static_cast<int>(j);
+    }
+  }
+  return found;
+}
+
+void CheckFrames(const std::string& file,
+                 size_t frames,
+                 const std::string& capture,
+                 size_t expected) {
+  if (frames != expected) {
+    throw IoError(fmt::format("{}: {} frames, but the capture {} has {}",
+                              file,
+                              frames,
+                              capture,
+                              expected));
+  }
+}
+
+}  // namespace
+
+std::string FindSidecar(const std::string& capture) {
+  const fs::path path(capture);
+  const std::string stem = path.stem().string();
+  constexpr std::string_view kSuffix = "_labeled";
+  if (stem.size() <= kSuffix.size() ||
+      stem.compare(stem.size() - kSuffix.size(), kSuffix.size(), kSuffix) !=
+          0) {
+    return "";
+  }
+  const fs::path sidecar =
+      path.parent_path() /
+      (stem.substr(0, stem.size() - kSuffix.size()) + "_labels.h5");
+  return fs::exists(sidecar) ? sidecar.string() : "";
+}
+
+ViewFrames ReadViewFrames(const ViewInputs& inputs) {
+  const C3dData c3d = ReadC3d(inputs.capture);
+  const std::vector<LabeledPoints> shown = C3dPoints(c3d);
+  std::vector<LabeledPoints> truth, sidecar;
+  if (!inputs.truth.empty()) {
+    truth = ReadTruth(inputs.truth);
+    CheckFrames(inputs.truth, truth.size(), inputs.capture, shown.size());
+  }
+  if (!inputs.sidecar.empty()) {
+    sidecar = ReadSidecar(inputs.sidecar);
+    CheckFrames(inputs.sidecar, sidecar.size(), inputs.capture, shown.size());
+  }
+
+  ViewFrames frames;
+  frames.title = fs::path(inputs.capture).filename().string();
+  frames.source = inputs.capture;
+  frames.truth_source = inputs.truth;
+  frames.confidence_source = inputs.sidecar;
+  frames.frame_rate = c3d.frame_rate;
+  frames.first_frame = c3d.first_frame;
+  frames.with_truth = !inputs.truth.empty();
+  frames.with_confidence = !inputs.sidecar.empty();
+
+  // Label ids: capture columns, then sidecar labels, then ground truth.
+  std::map<std::string, int> ids;
+  auto add_label = [&](const std::string& name) {
+    if (!name.empty() && ids.emplace(name, frames.labels.size()).second) {
+      frames.labels.push_back(name);
+    }
+  };
+  for (const std::string& label : c3d.labels) add_label(ClassOfColumn(label));
+  for (const auto* source : {&sidecar, &truth}) {
+    for (const LabeledPoints& frame : *source) {
+      for (const std::string& label : frame.labels) add_label(label);
+    }
+  }
+  const int L = static_cast<int>(frames.labels.size());
+  auto id_of = [&](const std::string& name) {
+    return name.empty() ? L : ids.at(name);
+  };
+
+  int64_t from_sidecar = 0;
+  for (size_t t = 0; t < shown.size(); ++t) {
+    const LabeledPoints& frame = shown[t];
+    for (size_t i = 0; i < frame.points.size(); ++i) {
+      const Eigen::Vector3d& x = frame.points[i];
+      int label = id_of(frame.labels[i]);
+      int track = frame.columns[i];
+      float confidence = std::numeric_limits<float>::quiet_NaN();
+      if (!sidecar.empty()) {
+        const int j =
+            UniqueMatch(x, sidecar[t].points, inputs.sidecar_tolerance);
+        if (j >= 0) {
+          ++from_sidecar;
+          confidence = sidecar[t].confidences[j];
+          track = sidecar[t].columns[j];
+          if (label == L) label = id_of(sidecar[t].labels[j]);
+        }
+      }
+      int true_label = L + 1;
+      if (!truth.empty()) {
+        const int j = UniqueMatch(x, truth[t].points, inputs.tolerance);
+        if (j >= 0) true_label = id_of(truth[t].labels[j]);
+      }
+      const float position[3] = {static_cast<float>(x.x()),
+                                 static_cast<float>(x.y()),
+                                 static_cast<float>(x.z())};
+      frames.AddPoint(position, label, true_label, confidence, track);
+    }
+    frames.EndFrame();
+  }
+  frames.track_source =
+      from_sidecar > 0
+          ? fmt::format("input column of the labeller ({})", inputs.sidecar)
+          : fmt::format("column of {}", inputs.capture);
+  frames.Validate();
+  return frames;
+}
+
+std::vector<std::array<int, 2>> NeighbourSticks(
+    const std::vector<std::string>& labels,
+    const std::vector<std::string>& layout_labels,
+    const Eigen::Matrix3Xd& layout_positions,
+    int neighbours) {
+  if (static_cast<Eigen::Index>(layout_labels.size()) !=
+      layout_positions.cols()) {
+    throw ShapeError(
+        fmt::format("NeighbourSticks: {} layout labels but {} "
+                    "positions",
+                    layout_labels.size(),
+                    layout_positions.cols()));
+  }
+  // (label id, layout column) of the labels the layout has.
+  std::vector<std::pair<int, int>> present;
+  for (size_t m = 0; m < layout_labels.size(); ++m) {
+    const std::string name = CanonicalMarkerLabel(layout_labels[m]);
+    const auto it = std::find(labels.begin(), labels.end(), name);
+    if (it != labels.end()) {
+      present.emplace_back(static_cast<int>(it - labels.begin()),
+                           static_cast<int>(m));
+    }
+  }
+  std::set<std::array<int, 2>> sticks;
+  for (const auto& [id, m] : present) {
+    std::vector<std::pair<double, int>> by_distance;
+    for (const auto& [other_id, other_m] : present) {
+      if (other_id == id) continue;
+      by_distance.emplace_back(
+          (layout_positions.col(m) - layout_positions.col(other_m)).norm(),
+          other_id);
+    }
+    const size_t k =
+        std::min<size_t>(std::max(neighbours, 0), by_distance.size());
+    std::partial_sort(
+        by_distance.begin(), by_distance.begin() + k, by_distance.end());
+    for (size_t j = 0; j < k; ++j) {
+      const int other = by_distance[j].second;
+      sticks.insert({std::min(id, other), std::max(id, other)});
+    }
+  }
+  return {sticks.begin(), sticks.end()};
+}
+
+}  // namespace soma
