@@ -1,0 +1,178 @@
+// `soma view`: one self-contained HTML page of a capture (issue #27) that
+// opens from disk with no server and no network: the markers of every frame
+// in 3D (three.js, bundled into the template), their labels, and optionally
+// the ground truth and the labeller's confidences.
+//
+//   soma view take.c3d                                  # raw or labelled
+//   soma view <label run>/<take>_labeled.c3d            # + its _labels.h5
+//   soma view <label run>/<take>_labeled.c3d task.gt=<corrupt
+//   run>/<setting>/<take>.h5
+//
+// writes `<run dir>/<stem>.html`. The page is the template
+// viewer/soma_view.html of the resource root (built from viewer/src by
+// viewer/build.mjs; README "Look at the labels") with the data of
+// framework/view/view_data.h in place of its placeholder. Sticks join every
+// marker to its `task.sticks` nearest markers of the `layout` group's layout
+// on the `body` group's body at rest. Pages above `task.max_page_mb` show
+// every k-th frame and say so.
+#include "framework/config/decode.h"
+#include "framework/core/error.h"
+#include "framework/core/file.h"
+#include "framework/core/logging.h"
+#include "framework/core/resources.h"
+#include "framework/core/timer.h"
+#include "framework/registry/registry.h"
+#include "framework/tasks/components.h"
+#include "framework/tasks/task.h"
+#include "framework/view/view_capture.h"
+#include "framework/view/view_data.h"
+
+#include <fmt/format.h>
+
+#include <filesystem>
+
+namespace soma {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct ViewOptions {
+  std::string input;
+  std::string gt;                // "" = none
+  std::string sidecar = "auto";  // auto, "" (none) or a path
+  std::string template_path;     // "" = the resource root's
+  double max_page_mb = 30.0;     // page size limit (MB = 1e6 bytes)
+  int sticks = 2;                // neighbours per marker; 0 = no sticks
+  double tolerance = 1e-8;       // ground-truth match, metres
+};
+
+class ViewTask : public Task {
+ public:
+  explicit ViewTask(ViewOptions options) : options_(std::move(options)) {}
+
+  void Run(const ConfigNode& cfg, RunContext& ctx) override {
+    Timer timer;
+    ViewInputs inputs;
+    inputs.capture = options_.input;
+    inputs.truth = options_.gt;
+    inputs.sidecar = options_.sidecar == "auto" ? FindSidecar(options_.input)
+                                                : options_.sidecar;
+    inputs.tolerance = options_.tolerance;
+    const fs::path template_path = options_.template_path.empty()
+                                       ? ResourcePath("viewer/soma_view.html")
+                                       : fs::path(options_.template_path);
+    const std::string html = ReadFile(template_path);
+
+    ViewFrames frames = ReadViewFrames(inputs);
+    if (options_.sticks > 0) frames.sticks = LayoutSticks(cfg, frames, ctx);
+
+    ViewPageOptions page;
+    page.max_page_bytes = static_cast<int64_t>(options_.max_page_mb * 1e6);
+    page.template_bytes = static_cast<int64_t>(html.size());
+    ViewDataSummary summary;
+    const std::string json = PackViewData(frames, page, &summary);
+    const std::string filled =
+        FillViewTemplate(html, json, template_path.string());
+    const fs::path out =
+        ctx.output_dir / (fs::path(options_.input).stem().string() + ".html");
+    WriteFileAtomic(out, filled);
+
+    SOMA_LOG(INFO,
+             "view: {} frames ({} shown, every {}), {} points, {} labels, {} "
+             "sticks{}{} -> {} ({:.1f} MB, {:.1f}s)",
+             summary.take_frames,
+             summary.shown_frames,
+             summary.frame_step,
+             summary.shown_points,
+             frames.labels.size(),
+             frames.sticks.size(),
+             inputs.truth.empty() ? "" : ", ground truth " + inputs.truth,
+             inputs.sidecar.empty() ? "" : ", confidences " + inputs.sidecar,
+             out.string(),
+             filled.size() / 1e6,
+             timer.ElapsedSeconds());
+    if (!summary.note.empty()) SOMA_LOG(WARNING, "view: {}", summary.note);
+    if (frames.has_truth()) {
+      const auto& n = summary.status_counts;
+      SOMA_LOG(INFO,
+               "view: shown points against ground truth: {} correct, {} "
+               "wrong, {} ghosts labelled as markers, {} missed, {} without "
+               "ground truth",
+               n[int(PointStatus::kCorrect)],
+               n[int(PointStatus::kWrong)],
+               n[int(PointStatus::kGhostAsMarker)],
+               n[int(PointStatus::kMissed)],
+               n[int(PointStatus::kNoTruth)]);
+      ctx.ReportMetric("wrong", double(n[int(PointStatus::kWrong)]));
+      ctx.ReportMetric("ghost_as_marker",
+                       double(n[int(PointStatus::kGhostAsMarker)]));
+      ctx.ReportMetric("missed", double(n[int(PointStatus::kMissed)]));
+    }
+    ctx.ReportMetric("frames", summary.take_frames);
+    ctx.ReportMetric("shown_frames", summary.shown_frames);
+    ctx.ReportMetric("frame_step", summary.frame_step);
+    ctx.ReportMetric("points", double(summary.shown_points));
+    ctx.ReportMetric("page_mb", filled.size() / 1e6);
+  }
+
+ private:
+  /// Sticks from the layout group on the body group's rest pose; none (and
+  /// a log line) when the layout shares no label with the capture.
+  std::vector<std::array<int, 2>> LayoutSticks(const ConfigNode& cfg,
+                                               const ViewFrames& frames,
+                                               RunContext& ctx) const {
+    if (frames.labels.empty()) return {};
+    BuildContext build(ctx.seed, ctx.output_dir.string());
+    const BodyModel body = BuildBody(cfg, build);
+    const MarkerLayout layout = BuildLayout(cfg, body, build);
+    Eigen::Matrix3Xd rest(3, layout.num_markers());
+    for (int m = 0; m < layout.num_markers(); ++m) {
+      rest.col(m) = body.template_vertices.col(layout.markers[m].vertex_ids[0]);
+    }
+    auto sticks =
+        NeighbourSticks(frames.labels, layout.Labels(), rest, options_.sticks);
+    if (sticks.empty()) {
+      SOMA_LOG(INFO,
+               "view: the layout shares no label with {}; no sticks (choose "
+               "one with layout=<name> or layout=file layout.path=...)",
+               options_.input);
+    }
+    return sticks;
+  }
+
+  ViewOptions options_;
+};
+
+}  // namespace
+
+void RegisterViewTask(Registry<Task>& registry) {
+  registry.Register("view", [](const ConfigNode& node, BuildContext&) {
+    ConfigReader reader(node);
+    ViewOptions options;
+    reader.Require("input", &options.input);
+    // Optional paths: null = none (the sidecar: none; the template: the
+    // resource root's).
+    auto read_path = [&](std::string_view key, std::string* out) {
+      if (const ConfigNode* value = node.Find(key);
+          value != nullptr && value->IsNull()) {
+        reader.Ignore(key);
+        out->clear();
+      } else {
+        reader.Read(key, out);
+      }
+    };
+    read_path("gt", &options.gt);
+    read_path("sidecar", &options.sidecar);
+    read_path("template", &options.template_path);
+    reader.Read("max_page_mb", &options.max_page_mb);
+    reader.Read("sticks", &options.sticks);
+    reader.Read("tolerance", &options.tolerance);
+    reader.Check("max_page_mb", options.max_page_mb > 0, "a positive size");
+    reader.Check("sticks", options.sticks >= 0, "neighbours per marker >= 0");
+    reader.Check("tolerance", options.tolerance >= 0, "metres >= 0");
+    reader.Finish();
+    return std::make_unique<ViewTask>(std::move(options));
+  });
+}
+
+}  // namespace soma
