@@ -56,7 +56,10 @@ replace('<!--SOMA_CSS-->', `<style>\n${css}</style>`);
 replace('<!--SOMA_JS-->', `<script>${js}</script>`);
 if (html.split(PLACEHOLDER).length !== 2) throw new Error(`the template must hold ${PLACEHOLDER} once`);
 
-const out = join(root, 'soma_view.html');
+// `node build.mjs --out <file>` writes elsewhere (tests/view/template_test.sh
+// rebuilds into a temporary file and compares).
+const outArg = process.argv.indexOf('--out');
+const out = outArg > 0 ? process.argv[outArg + 1] : join(root, 'soma_view.html');
 writeFileSync(`${out}.tmp`, html);
 renameSync(`${out}.tmp`, out);
 console.log(`wrote ${out} (${html.length} bytes; three ${three}, esbuild ${esbuildVersion})`);

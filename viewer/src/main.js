@@ -173,7 +173,10 @@ class Viewer {
     grid.rotation.x = Math.PI / 2;  // the XY plane (z = 0 floor)
     grid.position.set(Math.round(center.x), Math.round(center.y), 0);
     scene.add(grid);
-    const axes = new THREE.AxesHelper(0.3);  // the capture's origin: x red, y green, z blue
+    // The capture's origin; x magenta, y cyan, z blue (red and orange mean
+    // labelling errors here).
+    const axes = new THREE.AxesHelper(0.3);
+    axes.setColors(new THREE.Color(0xd070ff), new THREE.Color(0x40d0d0), new THREE.Color(0x6080ff));
     axes.position.set(0, 0, 0.001);
     scene.add(axes);
 
@@ -187,16 +190,30 @@ class Viewer {
     const n = Math.max(d.maxPoints, 1);
     const sphere = new THREE.SphereGeometry(MARKER_RADIUS, 16, 12);
     this.solid = new THREE.InstancedMesh(sphere, new THREE.MeshStandardMaterial({ roughness: 0.5 }), n);
-    this.hollow = new THREE.InstancedMesh(
-      new THREE.SphereGeometry(MARKER_RADIUS * 1.25, 12, 8),
-      new THREE.MeshBasicMaterial({ wireframe: true }), n);
-    for (const mesh of [this.solid, this.hollow]) {
-      mesh.instanceMatrix.setUsage(THREE.DynamicDrawUsage);
-      mesh.count = 0;
-      mesh.frustumCulled = false;
-      mesh.setColorAt(0, new THREE.Color());
-      scene.add(mesh);
-    }
+    this.solid.instanceMatrix.setUsage(THREE.DynamicDrawUsage);
+    this.solid.count = 0;
+    this.solid.frustumCulled = false;
+    this.solid.setColorAt(0, new THREE.Color());
+    scene.add(this.solid);
+    // Missed markers: hollow rings (sprites that always face the camera).
+    const ring = document.createElement('canvas');
+    ring.width = ring.height = 64;
+    const g = ring.getContext('2d');
+    g.strokeStyle = '#ffffff';
+    g.lineWidth = 7;
+    g.beginPath();
+    g.arc(32, 32, 25, 0, 2 * Math.PI);
+    g.stroke();
+    const hollowGeometry = new THREE.BufferGeometry();
+    this.hollowPositions = new Float32Array(3 * n);
+    this.hollowColors = new Float32Array(3 * n);
+    hollowGeometry.setAttribute('position', new THREE.BufferAttribute(this.hollowPositions, 3).setUsage(THREE.DynamicDrawUsage));
+    hollowGeometry.setAttribute('color', new THREE.BufferAttribute(this.hollowColors, 3).setUsage(THREE.DynamicDrawUsage));
+    this.hollow = new THREE.Points(hollowGeometry, new THREE.PointsMaterial({
+      size: 11 * MARKER_RADIUS, sizeAttenuation: true, map: new THREE.CanvasTexture(ring),
+      vertexColors: true, transparent: true, alphaTest: 0.3, depthWrite: false }));
+    this.hollow.frustumCulled = false;
+    scene.add(this.hollow);
     const stickGeometry = new THREE.BufferGeometry();
     this.stickPositions = new Float32Array(Math.max(d.sticks.length, 1) * 6);
     stickGeometry.setAttribute('position', new THREE.BufferAttribute(this.stickPositions, 3).setUsage(THREE.DynamicDrawUsage));
@@ -287,18 +304,20 @@ class Viewer {
       m.makeTranslation(x, y, z);
       const color = this.colorOf(i);
       if (missed) {
-        this.hollow.setMatrixAt(nh, m); this.hollow.setColorAt(nh, color); nh++;
+        this.hollowPositions.set([x, y, z], 3 * nh);
+        this.hollowColors.set([color.r, color.g, color.b], 3 * nh);
+        nh++;
       } else {
         this.solid.setMatrixAt(ns, m); this.solid.setColorAt(ns, color); ns++;
       }
       this.shown.push(i);
     }
     this.solid.count = ns;
-    this.hollow.count = nh;
-    for (const mesh of [this.solid, this.hollow]) {
-      mesh.instanceMatrix.needsUpdate = true;
-      if (mesh.instanceColor) mesh.instanceColor.needsUpdate = true;
-    }
+    this.solid.instanceMatrix.needsUpdate = true;
+    if (this.solid.instanceColor) this.solid.instanceColor.needsUpdate = true;
+    this.hollow.geometry.setDrawRange(0, nh);
+    this.hollow.geometry.attributes.position.needsUpdate = true;
+    this.hollow.geometry.attributes.color.needsUpdate = true;
     let k = 0;
     if ($('show-sticks').checked) {
       for (const [a, b] of d.sticks) {
