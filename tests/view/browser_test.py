@@ -1,0 +1,195 @@
+#!/usr/bin/env python3
+"""CTest view.browser: the `soma view` page of a labelled real take in a real
+browser (Debian's chromium, headless; scripts/install_deps.sh installs it).
+
+1. `soma label_eval` corrupts the real HDM05 take of ../shared/data/c3d
+   (OC_05_G_03_BT_00), labels it per frame with the bundled model and scores
+   it (per_frame/per_frame.csv); `soma view` writes the page of the labelled
+   C3D with the corruption's ground truth (and the sidecar's confidences).
+2. chromium --dump-dom loads the page: the counts the page writes into the
+   data-* attributes of #status must equal the sidecar's (h5py: frames,
+   points per frame, points in all), and at `#frame=N` for the first frame
+   that soma eval scored below 100%, the page's accuracy must equal eval's and
+   its wrong + ghost + missed count must equal eval's errors (> 0); frame 0
+   (100% in eval) must show no error.
+3. chromium --screenshot of frame N and of frame 0: the 3D view of frame N
+   must hold pixels of the wrong-label red or the ghost orange, frame 0's
+   none. Both PNGs stay in <build>/tests/view_browser/ as artefacts.
+
+    python3 tests/view/browser_test.py <soma binary> <source dir> <artefact dir>
+"""
+import html.parser
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+import h5py
+import numpy as np
+from PIL import Image
+
+TAKE = "HDM_mm_01-02_03_120"
+WINDOW = (1400, 850)
+PANEL_WIDTH, HEADER_HEIGHT, FOOTER_HEIGHT = 215, 75, 100  # CSS layout, px
+
+
+def fail(message):
+    print(f"FAIL: {message}")
+    sys.exit(1)
+
+
+def run(cmd, **kwargs):
+    result = subprocess.run(cmd, capture_output=True, text=True, **kwargs)
+    if result.returncode != 0:
+        fail(f"{' '.join(cmd)} exited {result.returncode}:\n{result.stdout[-2000:]}{result.stderr[-2000:]}")
+    return result.stdout
+
+
+def chromium_command():
+    for name in ("chromium", "chromium-browser"):
+        path = shutil.which(name)
+        if path:
+            return path
+    fail("no chromium on PATH: install it with scripts/install_deps.sh (Debian package chromium)")
+
+
+def browser(chromium, profile, url, *mode):
+    # Flags for a root, offline, sandbox-less headless run; WebGL through
+    # SwiftShader (software), so no GPU is needed.
+    return run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+                "--no-first-run", "--disable-background-networking", "--disable-component-update",
+                "--disable-sync", f"--user-data-dir={profile}", "--use-angle=swiftshader",
+                "--enable-unsafe-swiftshader", "--hide-scrollbars", "--virtual-time-budget=4000",
+                f"--window-size={WINDOW[0]},{WINDOW[1]}", *mode, url], timeout=60)
+
+
+class StatusParser(html.parser.HTMLParser):
+    """The attributes of <span id="status">."""
+
+    def __init__(self):
+        super().__init__()
+        self.attrs = None
+
+    def handle_starttag(self, tag, attrs):
+        attrs = dict(attrs)
+        if attrs.get("id") == "status":
+            self.attrs = attrs
+
+
+def page_status(chromium, profile, url):
+    parser = StatusParser()
+    parser.feed(browser(chromium, profile, url, "--dump-dom"))
+    if parser.attrs is None:
+        fail(f"{url}: no #status element in the DOM")
+    if "data-error" in parser.attrs:
+        fail(f"{url}: the page reports an error: {parser.attrs['data-error']}")
+    if parser.attrs.get("data-ready") != "1":
+        fail(f"{url}: the page did not finish loading (data-ready missing)")
+    return parser.attrs
+
+
+def read_png_rgb(path):
+    """A PNG as an H x W x 3 uint8 array (Pillow: python3-pil, a dependency of
+    python3-matplotlib in scripts/install_deps.sh)."""
+    with Image.open(path) as image:
+        return np.asarray(image.convert("RGB"))
+
+
+def count_flagged(image):
+    """Pixels of the 3D view (no header, panel, footer) in the hues of the
+    wrong-label red (#e53935) and the ghost orange (#ff9800), lit or shaded:
+    red well above green and blue. Nothing else on the page is drawn in those
+    hues (correct markers green, rejected ghosts grey, sticks grey, the
+    origin's axes magenta, cyan, blue)."""
+    h, w, _ = image.shape
+    view = image[HEADER_HEIGHT:h - FOOTER_HEIGHT, :w - PANEL_WIDTH].astype(np.int32)
+    r, g, b = view[:, :, 0], view[:, :, 1], view[:, :, 2]
+    return int(((r > 100) & (g < 0.75 * r) & (b < 0.5 * r)).sum())
+
+
+def main():
+    soma, source, artefacts = sys.argv[1:4]
+    take = os.path.join(source, "..", "shared", "data", "c3d", f"{TAKE}.c3d")
+    if not os.path.exists(take):
+        fail(f"{take} is missing (../shared/data, see README 'Data and licences')")
+    chromium = chromium_command()
+    os.makedirs(artefacts, exist_ok=True)
+    work = tempfile.mkdtemp(prefix="somalab_view_browser_")
+    start = time.time()
+    try:
+        # 1. Label and score the real take; write its page.
+        run([soma, "label_eval", take, "threads=1", f"hydra.run.dir={work}/label_eval"])
+        labelled = f"{work}/label_eval/per_frame/{TAKE}_labeled.c3d"
+        truth = f"{work}/label_eval/OC_05_G_03_BT_00/{TAKE}.h5"
+        run([soma, "view", labelled, f"task.gt={truth}", "threads=1", f"hydra.run.dir={work}/view"])
+        page = f"{work}/view/{TAKE}_labeled.html"
+        size_mb = os.path.getsize(page) / 1e6
+
+        # What the page must report, from files the page's code did not write.
+        with h5py.File(f"{work}/label_eval/per_frame/{TAKE}_labels.h5", "r") as f:
+            points_per_frame = (f["column"][:] >= 0).sum(axis=1)
+        frames = len(points_per_frame)
+        rows = np.genfromtxt(f"{work}/label_eval/per_frame/per_frame.csv", delimiter=",", names=True)
+        bad = rows[rows["accuracy"] < 1.0]
+        if len(bad) == 0:
+            fail("soma eval scored every frame 100%: no labelling error to look at")
+        error_frame = int(bad["frame"][0])
+        error_row = bad[0]
+        errors = int(round(error_row["pairs"] * (1.0 - error_row["accuracy"])))
+        first = rows[rows["frame"] == 0]
+        if len(first) != 1 or first["accuracy"][0] != 1.0:
+            fail("soma eval did not score frame 0 at 100%; the clean-frame check needs another frame")
+
+        # 2. Counts in the DOM.
+        profile = f"{work}/profile"
+        os.makedirs(profile)
+        url = f"file://{os.path.abspath(page)}"
+        status = page_status(chromium, profile, f"{url}#frame={error_frame}")
+        expect = {
+            "data-frames": str(frames),
+            "data-shown-frames": str(frames),
+            "data-points": str(int(points_per_frame.sum())),
+            "data-frame": str(error_frame),
+            "data-frame-points": str(int(points_per_frame[error_frame])),
+            "data-webgl": "ok",
+        }
+        for key, value in expect.items():
+            if status.get(key) != value:
+                fail(f"#frame={error_frame}: {key} = {status.get(key)}, expected {value}")
+        shown_errors = sum(int(status[k]) for k in ("data-frame-wrong", "data-frame-ghost", "data-frame-missed"))
+        if shown_errors != errors or shown_errors == 0:
+            fail(f"#frame={error_frame}: the page shows {shown_errors} errors, soma eval counts {errors}")
+        if abs(float(status["data-frame-accuracy"]) - error_row["accuracy"]) > 1e-6:
+            fail(f"#frame={error_frame}: accuracy {status['data-frame-accuracy']}, soma eval {error_row['accuracy']}")
+        clean = page_status(chromium, profile, f"{url}#frame=0")
+        clean_errors = sum(int(clean[k]) for k in ("data-frame-wrong", "data-frame-ghost", "data-frame-missed"))
+        if clean.get("data-frame") != "0" or clean_errors != 0:
+            fail(f"#frame=0: frame {clean.get('data-frame')} with {clean_errors} errors, expected frame 0 with none")
+
+        # 3. What the 3D view shows.
+        shot = os.path.join(artefacts, f"{TAKE}_frame{error_frame}.png")
+        shot_clean = os.path.join(artefacts, f"{TAKE}_frame0.png")
+        browser(chromium, profile, f"{url}#frame={error_frame}", f"--screenshot={shot}")
+        browser(chromium, profile, f"{url}#frame=0", f"--screenshot={shot_clean}")
+        image, image_clean = read_png_rgb(shot), read_png_rgb(shot_clean)
+        if image.shape[:2] != (WINDOW[1], WINDOW[0]):
+            fail(f"{shot}: {image.shape[1]} x {image.shape[0]} px, expected {WINDOW[0]} x {WINDOW[1]}")
+        flagged, flagged_clean = count_flagged(image), count_flagged(image_clean)
+        if flagged == 0:
+            fail(f"{shot}: no red or orange marker in the 3D view of frame {error_frame}")
+        if flagged_clean != 0:
+            fail(f"{shot_clean}: {flagged_clean} red/orange pixels in the 3D view of the error-free frame 0")
+        print(f"ok: {frames} frames, {int(points_per_frame.sum())} points; frame {error_frame}: "
+              f"{status['data-frame-points']} points, {shown_errors} errors "
+              f"({status['data-frame-wrong']} wrong, {status['data-frame-ghost']} ghosts, "
+              f"{status['data-frame-missed']} missed) = soma eval's; {flagged} red/orange px "
+              f"(frame 0: {flagged_clean}); page {size_mb:.1f} MB; {time.time() - start:.1f} s; "
+              f"screenshots in {artefacts}")
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
