@@ -41,9 +41,30 @@ bool IsPresent(const C3dData& c3d, int t, int k) {
   return p.allFinite() && !(p.array() == 0.0f).all();
 }
 
-/// Per frame: the present points of a C3D and their column classes.
+/// Columns that are model outputs but no positions: the labels listed in
+/// POINT:ANGLES, FORCES, MOMENTS, POWERS, SCALARS and REACTIONS (Vicon
+/// Nexus / Plug-in Gait files store joint angles, forces ... as points).
+std::vector<bool> ModelOutputColumns(const C3dData& c3d) {
+  std::set<std::string> outputs;
+  for (const char* name :
+       {"ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS"}) {
+    const C3dParameter* p = c3d.FindParameter("POINT", name);
+    if (p == nullptr || p->type != C3dParameterType::kChar) continue;
+    for (const std::string& label : p->AsStrings()) outputs.insert(label);
+  }
+  std::vector<bool> is_output(c3d.num_points, false);
+  for (int k = 0; k < c3d.num_points; ++k) {
+    is_output[k] = k < static_cast<int>(c3d.labels.size()) &&
+                   outputs.count(c3d.labels[k]) > 0;
+  }
+  return is_output;
+}
+
+/// Per frame: the present points of a C3D (model outputs left out) and
+/// their column classes.
 std::vector<LabeledPoints> C3dPoints(const C3dData& c3d) {
   const double to_metres = c3d.MetresPerUnit();
+  const std::vector<bool> is_output = ModelOutputColumns(c3d);
   std::vector<std::string> classes(c3d.num_points);
   for (int k = 0; k < c3d.num_points; ++k) {
     classes[k] = k < static_cast<int>(c3d.labels.size())
@@ -53,7 +74,7 @@ std::vector<LabeledPoints> C3dPoints(const C3dData& c3d) {
   std::vector<LabeledPoints> frames(c3d.num_frames);
   for (int t = 0; t < c3d.num_frames; ++t) {
     for (int k = 0; k < c3d.num_points; ++k) {
-      if (!IsPresent(c3d, t, k)) continue;
+      if (is_output[k] || !IsPresent(c3d, t, k)) continue;
       frames[t].points.push_back(c3d.Point(t, k).cast<double>() * to_metres);
       frames[t].labels.push_back(classes[k]);
       frames[t].columns.push_back(k);
@@ -215,7 +236,10 @@ ViewFrames ReadViewFrames(const ViewInputs& inputs) {
       frames.labels.push_back(name);
     }
   };
-  for (const std::string& label : c3d.labels) add_label(ClassOfColumn(label));
+  const std::vector<bool> is_output = ModelOutputColumns(c3d);
+  for (int k = 0; k < c3d.num_points && k < int(c3d.labels.size()); ++k) {
+    if (!is_output[k]) add_label(ClassOfColumn(c3d.labels[k]));
+  }
   for (const auto* source : {&sidecar, &truth}) {
     for (const LabeledPoints& frame : *source) {
       for (const std::string& label : frame.labels) add_label(label);

@@ -30,14 +30,16 @@ struct ViewInputs {
 };
 
 /// Reads the inputs. A point is shown when it is valid, finite and not
-/// (0, 0, 0). Its label is its C3D column's canonical label
-/// (CanonicalMarkerLabel; `*<k>` and empty columns are null), else the
-/// sidecar's label of the point at its coordinates; its true label is the
-/// label of the one ground-truth point at its coordinates (none when zero
-/// or several match); its track id is the sidecar's input column when the
-/// sidecar has the point, else its column in `capture`. Label ids: the
-/// capture's labelled columns in column order, then the sidecar's labels,
-/// then the ground truth's. IoError (one line, naming the file) for
+/// (0, 0, 0), and its column is not a model output that is no position
+/// (listed in POINT:ANGLES, FORCES, MOMENTS, POWERS, SCALARS or REACTIONS;
+/// virtual points such as a Plug-in Gait segment's origin are shown). Its label
+/// is its C3D column's canonical label (CanonicalMarkerLabel; `*<k>` and empty
+/// columns are null), else the sidecar's label of the point at its coordinates;
+/// its true label is the label of the one ground-truth point at its coordinates
+/// (none when zero or several match); its track id is the sidecar's input
+/// column when the sidecar has the point, else its column in `capture`. Label
+/// ids: the capture's labelled columns in column order, then the sidecar's
+/// labels, then the ground truth's. IoError (one line, naming the file) for
 /// unreadable files or frame counts that differ from the capture's.
 ViewFrames ReadViewFrames(const ViewInputs& inputs);
 

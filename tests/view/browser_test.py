@@ -12,6 +12,8 @@ browser (Debian's chromium, headless; scripts/install_deps.sh installs it).
    that soma eval scored below 100%, the page's accuracy must equal eval's and
    its wrong + ghost + missed count must equal eval's errors (> 0); frame 0
    (100% in eval) must show no error.
+   With task.max_page_mb=2 the page (under 2 MB) shows every k-th frame,
+   says so in its note, and #frame=N shows the nearest shown frame.
 3. chromium --screenshot of frame N and of frame 0: the 3D view of frame N
    must hold pixels of the wrong-label red or the ghost orange, frame 0's
    none. Both PNGs stay in <build>/tests/view_browser/ as artefacts.
@@ -61,7 +63,7 @@ def browser(chromium, profile, url, *mode):
     return run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
                 "--no-first-run", "--disable-background-networking", "--disable-component-update",
                 "--disable-sync", f"--user-data-dir={profile}", "--use-angle=swiftshader",
-                "--enable-unsafe-swiftshader", "--hide-scrollbars", "--virtual-time-budget=4000",
+                "--enable-unsafe-swiftshader", "--hide-scrollbars", "--virtual-time-budget=2500",
                 f"--window-size={WINDOW[0]},{WINDOW[1]}", *mode, url], timeout=60)
 
 
@@ -168,6 +170,30 @@ def main():
         if clean.get("data-frame") != "0" or clean_errors != 0:
             fail(f"#frame=0: frame {clean.get('data-frame')} with {clean_errors} errors, expected frame 0 with none")
 
+        # A page over its size limit shows every k-th frame and says so.
+        run([soma, "view", labelled, f"task.gt={truth}", "task.max_page_mb=2", "threads=1",
+             f"hydra.run.dir={work}/view_small"])
+        small_page = f"{work}/view_small/{TAKE}_labeled.html"
+        if os.path.getsize(small_page) > 2e6:
+            fail(f"{small_page}: {os.path.getsize(small_page)} bytes, above task.max_page_mb=2")
+        parser = StatusParser()
+        dom = browser(chromium, profile, f"file://{os.path.abspath(small_page)}#frame={error_frame}", "--dump-dom")
+        parser.feed(dom)
+        small = parser.attrs or {}
+        step = int(small.get("data-frame-step", "0"))
+        if step < 2 or small.get("data-frames") != str(frames) or \
+                small.get("data-shown-frames") != str((frames + step - 1) // step):
+            fail(f"task.max_page_mb=2: step {step}, frames {small.get('data-frames')}, "
+                 f"shown {small.get('data-shown-frames')}; expected a step > 1 over {frames} frames")
+        lower = error_frame // step * step  # the nearest shown frame, ties to the lower
+        upper = lower + step
+        nearest = upper if upper < frames and upper - error_frame < error_frame - lower else lower
+        if small.get("data-frame") != str(nearest):
+            fail(f"task.max_page_mb=2, #frame={error_frame}: shows frame {small.get('data-frame')}, "
+                 f"expected the nearest shown frame {nearest}")
+        if f"1 frame in {step} is shown" not in dom or '<div id="note" hidden' in dom:
+            fail("task.max_page_mb=2: the page does not show its subsampling note")
+
         # 3. What the 3D view shows.
         shot = os.path.join(artefacts, f"{TAKE}_frame{error_frame}.png")
         shot_clean = os.path.join(artefacts, f"{TAKE}_frame0.png")
@@ -181,7 +207,7 @@ def main():
             fail(f"{shot}: no red or orange marker in the 3D view of frame {error_frame}")
         if flagged_clean != 0:
             fail(f"{shot_clean}: {flagged_clean} red/orange pixels in the 3D view of the error-free frame 0")
-        print(f"ok: {frames} frames, {int(points_per_frame.sum())} points; frame {error_frame}: "
+        print(f"ok (subsampled page: 1 frame in {step}): {frames} frames, {int(points_per_frame.sum())} points; frame {error_frame}: "
               f"{status['data-frame-points']} points, {shown_errors} errors "
               f"({status['data-frame-wrong']} wrong, {status['data-frame-ghost']} ghosts, "
               f"{status['data-frame-missed']} missed) = soma eval's; {flagged} red/orange px "

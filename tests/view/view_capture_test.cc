@@ -174,6 +174,23 @@ TEST(ReadViewFrames, RefusesInputsOfAnotherLength) {
               HasSubstr("needs its corrupted capture"));
 }
 
+TEST(ReadViewFrames, LeavesNonPositionOutputsOfARealPlugInGaitTakeOut) {
+  // 193 columns: markers and virtual points (positions, kept), and 26 joint
+  // angles, 20 forces, 18 moments, 16 powers stored as points (POINT:ANGLES
+  // ... name them), left out.
+  const fs::path take =
+      testing::SharedDataDir() / "c3d" / "PiG_Motion-FlatFoot-Hole.c3d";
+  const C3dData c3d = ReadC3d(take);
+  ASSERT_EQ(c3d.num_points, 193);
+  const ViewFrames v = ReadViewFrames({.capture = take.string()});
+  EXPECT_EQ(v.labels.size(), 193u - 26 - 20 - 18 - 16);
+  EXPECT_EQ(v.num_frames(), c3d.num_frames);
+  EXPECT_THAT(v.labels, ::testing::Contains("LFWT"));  // LASI, canonical
+  EXPECT_THAT(v.labels, ::testing::Contains("CENTREOFMASS"));
+  EXPECT_THAT(v.labels, ::testing::Not(::testing::Contains("LHIPANGLES")));
+  EXPECT_THAT(v.labels, ::testing::Not(::testing::Contains("LANKLEPOWER")));
+}
+
 TEST(FindSidecar, OnlyBesideALabelledCapture) {
   const fs::path dir = CreateTestDir();
   EXPECT_EQ(FindSidecar((dir / "take_labeled.c3d").string()), "");
