@@ -17,15 +17,11 @@
 // every k-th frame and say so.
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
-#include "framework/core/file.h"
 #include "framework/core/logging.h"
-#include "framework/core/resources.h"
 #include "framework/core/timer.h"
 #include "framework/registry/registry.h"
-#include "framework/tasks/components.h"
 #include "framework/tasks/task.h"
-#include "framework/view/view_capture.h"
-#include "framework/view/view_data.h"
+#include "framework/tasks/view_page.h"
 
 #include <fmt/format.h>
 
@@ -52,31 +48,21 @@ class ViewTask : public Task {
 
   void Run(const ConfigNode& cfg, RunContext& ctx) override {
     Timer timer;
-    ViewInputs inputs;
-    inputs.capture = options_.input;
-    inputs.truth = options_.gt;
-    inputs.sidecar = options_.sidecar == "auto" ? FindSidecar(options_.input)
-                                                : options_.sidecar;
-    inputs.tolerance = options_.tolerance;
-    const fs::path template_path = options_.template_path.empty()
-                                       ? ResourcePath("viewer/soma_view.html")
-                                       : fs::path(options_.template_path);
-    const std::string html = ReadFile(template_path);
-
-    ViewFrames frames = ReadViewFrames(inputs);
-    if (options_.sticks > 0) frames.sticks = LayoutSticks(cfg, frames, ctx);
-
-    ViewPageOptions page;
-    page.max_page_bytes = static_cast<int64_t>(options_.max_page_mb * 1e6);
-    page.template_bytes = static_cast<int64_t>(html.size());
-    ViewDataSummary summary;
-    const std::string json = PackViewData(frames, page, &summary);
-    const std::string filled =
-        FillViewTemplate(html, json, template_path.string());
+    ViewPageSettings settings;
+    settings.inputs.capture = options_.input;
+    settings.inputs.truth = options_.gt;
+    settings.inputs.sidecar = options_.sidecar == "auto"
+                                  ? FindSidecar(options_.input)
+                                  : options_.sidecar;
+    settings.inputs.tolerance = options_.tolerance;
+    settings.max_page_mb = options_.max_page_mb;
+    settings.sticks = options_.sticks;
+    settings.template_path = options_.template_path;
     const fs::path out =
         ctx.output_dir / (fs::path(options_.input).stem().string() + ".html");
-    WriteFileAtomic(out, filled);
-
+    const ViewPageResult page = WriteViewPage(cfg, settings, out, ctx);
+    const ViewDataSummary& summary = page.summary;
+    const ViewInputs& inputs = settings.inputs;
     SOMA_LOG(INFO,
              "view: {} frames ({} shown, every {}), {} points, {} labels, {} "
              "sticks{}{} -> {} ({:.1f} MB, {:.1f}s)",
@@ -84,15 +70,14 @@ class ViewTask : public Task {
              summary.shown_frames,
              summary.frame_step,
              summary.shown_points,
-             frames.labels.size(),
-             frames.sticks.size(),
+             page.num_labels,
+             page.num_sticks,
              inputs.truth.empty() ? "" : ", ground truth " + inputs.truth,
              inputs.sidecar.empty() ? "" : ", confidences " + inputs.sidecar,
              out.string(),
-             filled.size() / 1e6,
+             page.bytes / 1e6,
              timer.ElapsedSeconds());
-    if (!summary.note.empty()) SOMA_LOG(WARNING, "view: {}", summary.note);
-    if (frames.has_truth()) {
+    if (!inputs.truth.empty()) {
       const auto& n = summary.status_counts;
       SOMA_LOG(INFO,
                "view: shown points against ground truth: {} correct, {} "
@@ -112,34 +97,10 @@ class ViewTask : public Task {
     ctx.ReportMetric("shown_frames", summary.shown_frames);
     ctx.ReportMetric("frame_step", summary.frame_step);
     ctx.ReportMetric("points", double(summary.shown_points));
-    ctx.ReportMetric("page_mb", filled.size() / 1e6);
+    ctx.ReportMetric("page_mb", page.bytes / 1e6);
   }
 
  private:
-  /// Sticks from the layout group on the body group's rest pose; none (and
-  /// a log line) when the layout shares no label with the capture.
-  std::vector<std::array<int, 2>> LayoutSticks(const ConfigNode& cfg,
-                                               const ViewFrames& frames,
-                                               RunContext& ctx) const {
-    if (frames.labels.empty()) return {};
-    BuildContext build(ctx.seed, ctx.output_dir.string());
-    const BodyModel body = BuildBody(cfg, build);
-    const MarkerLayout layout = BuildLayout(cfg, body, build);
-    Eigen::Matrix3Xd rest(3, layout.num_markers());
-    for (int m = 0; m < layout.num_markers(); ++m) {
-      rest.col(m) = body.template_vertices.col(layout.markers[m].vertex_ids[0]);
-    }
-    auto sticks =
-        NeighbourSticks(frames.labels, layout.Labels(), rest, options_.sticks);
-    if (sticks.empty()) {
-      SOMA_LOG(INFO,
-               "view: the layout shares no label with {}; no sticks (choose "
-               "one with layout=<name> or layout=file layout.path=...)",
-               options_.input);
-    }
-    return sticks;
-  }
-
   ViewOptions options_;
 };
 
