@@ -40,6 +40,10 @@ struct ViewOptions {
   double max_page_mb = 30.0;     // page size limit (MB = 1e6 bytes)
   int sticks = 2;                // neighbours per marker; 0 = no sticks
   double tolerance = 1e-8;       // ground-truth match, metres
+  std::string solve;             // "" = no body
+  int mesh_every = 0;            // 0 = as often as a third of the page allows
+  int solve_start = 0;           // solve frame t = take frame start + stride t
+  int solve_stride = 1;
 };
 
 class ViewTask : public Task {
@@ -58,6 +62,10 @@ class ViewTask : public Task {
     settings.max_page_mb = options_.max_page_mb;
     settings.sticks = options_.sticks;
     settings.template_path = options_.template_path;
+    settings.solve = options_.solve;
+    settings.mesh_every = options_.mesh_every;
+    settings.solve_start = options_.solve_start;
+    settings.solve_stride = options_.solve_stride;
     const fs::path out =
         ctx.output_dir / (fs::path(options_.input).stem().string() + ".html");
     const ViewPageResult page = WriteViewPage(cfg, settings, out, ctx);
@@ -125,6 +133,13 @@ void RegisterViewTask(Registry<Task>& registry) {
     read_path("gt", &options.gt);
     read_path("sidecar", &options.sidecar);
     read_path("template", &options.template_path);
+    read_path("solve", &options.solve);
+    reader.Read("mesh_every", &options.mesh_every);
+    reader.Read("solve_start", &options.solve_start);
+    reader.Read("solve_stride", &options.solve_stride);
+    reader.Check("mesh_every", options.mesh_every >= 0, ">= 0 (0 = auto)");
+    reader.Check("solve_start", options.solve_start >= 0, "a frame >= 0");
+    reader.Check("solve_stride", options.solve_stride >= 1, ">= 1");
     reader.Read("max_page_mb", &options.max_page_mb);
     reader.Read("sticks", &options.sticks);
     reader.Read("tolerance", &options.tolerance);

@@ -191,6 +191,40 @@ void ViewFrames::Validate() const {
           L));
     }
   }
+  if (mesh_frames.size() != mesh_vertices.size()) {
+    throw ShapeError(fmt::format("view data: {} mesh frames but {} meshes",
+                                 mesh_frames.size(),
+                                 mesh_vertices.size()));
+  }
+  if (has_mesh()) {
+    const size_t coords = mesh_vertices.front().size();
+    const int V = static_cast<int>(coords / 3);
+    if (coords == 0 || coords % 3 != 0 || mesh_faces.empty() ||
+        mesh_faces.size() % 3 != 0) {
+      throw ShapeError(
+          fmt::format("view data: meshes of {} coordinates and {} face indices",
+                      coords,
+                      mesh_faces.size()));
+    }
+    for (size_t m = 0; m < mesh_frames.size(); ++m) {
+      if (mesh_vertices[m].size() != coords ||
+          mesh_frames[m] < (m == 0 ? 0 : mesh_frames[m - 1] + 1) ||
+          mesh_frames[m] >= num_frames()) {
+        throw ShapeError(fmt::format(
+            "view data: mesh {} (take frame {}, {} coordinates) out of order "
+            "or size",
+            m,
+            mesh_frames[m],
+            mesh_vertices[m].size()));
+      }
+    }
+    for (const int v : mesh_faces) {
+      if (v < 0 || v >= V) {
+        throw ShapeError(fmt::format(
+            "view data: mesh face vertex {} outside 0..{}", v, V - 1));
+      }
+    }
+  }
   for (const auto& [a, b] : sticks) {
     if (a < 0 || a >= L || b < 0 || b >= L) {
       throw ShapeError(
@@ -221,7 +255,33 @@ int64_t EstimateDataBytes(const ViewFrames& frames, int step) {
   if (frames.has_confidence()) {
     bytes += Base64Size(2 * P) + Base64Size(4 * F);
   }
+  if (frames.has_mesh()) {
+    bytes += EstimateMeshBytes(
+        static_cast<int>(frames.mesh_vertices.front().size() / 3),
+        static_cast<int>(frames.mesh_faces.size() / 3),
+        static_cast<int>(frames.mesh_frames.size()));
+  }
   return bytes;
+}
+
+int64_t EstimateMeshBytes(int num_vertices, int num_faces, int num_meshes) {
+  const int index_bytes = num_vertices <= 65535 ? 2 : 4;
+  return Base64Size(int64_t{index_bytes} * 3 * num_faces) +
+         Base64Size(4 * int64_t{num_meshes}) +
+         Base64Size(int64_t{num_meshes} * num_vertices * 3 * 2);
+}
+
+int ChooseMeshStep(int num_vertices,
+                   int num_faces,
+                   int num_candidates,
+                   int64_t budget_bytes) {
+  for (int k = 1; k <= std::max(num_candidates, 1); ++k) {
+    const int meshes = (num_candidates + k - 1) / k;
+    if (EstimateMeshBytes(num_vertices, num_faces, meshes) <= budget_bytes) {
+      return k;
+    }
+  }
+  return 0;
 }
 
 int ChooseFrameStep(const ViewFrames& frames, const ViewPageOptions& options) {
@@ -336,6 +396,37 @@ std::string PackViewData(const ViewFrames& frames,
     arrays += R"(,"confidence":)" + ArrayJson("uint16", confidence);
     arrays += R"(,"confidence_mean":)" + ArrayJson("float32", confidence_mean);
   }
+  std::string mesh_unit = "mm";
+  if (frames.has_mesh()) {
+    const size_t V3 = frames.mesh_vertices.front().size();
+    arrays += R"(,"mesh_faces":)" +
+              (V3 / 3 <= 65535
+                   ? ArrayJson("uint16", Narrow<uint16_t>(frames.mesh_faces))
+                   : ArrayJson("uint32", Narrow<uint32_t>(frames.mesh_faces)));
+    arrays += R"(,"mesh_frame":)" +
+              ArrayJson("uint32", Narrow<uint32_t>(frames.mesh_frames));
+    float extent = 0.0f;
+    for (const auto& mesh : frames.mesh_vertices) {
+      for (const float v : mesh) extent = std::max(extent, std::abs(v));
+    }
+    if (extent * 1000.0f < 32767.0f) {
+      std::vector<int16_t> mm;
+      mm.reserve(V3 * frames.mesh_vertices.size());
+      for (const auto& mesh : frames.mesh_vertices) {
+        for (const float v : mesh) {
+          mm.push_back(static_cast<int16_t>(std::lround(v * 1000.0f)));
+        }
+      }
+      arrays += R"(,"mesh_vertices":)" + ArrayJson("int16", mm);
+    } else {
+      mesh_unit = "m";
+      std::vector<float> m;
+      for (const auto& mesh : frames.mesh_vertices) {
+        m.insert(m.end(), mesh.begin(), mesh.end());
+      }
+      arrays += R"(,"mesh_vertices":)" + ArrayJson("float32", m);
+    }
+  }
 
   std::string labels_json, sticks_json;
   for (const std::string& name : frames.labels) {
@@ -351,7 +442,8 @@ std::string PackViewData(const ViewFrames& frames,
       R"("truth_source":{},"confidence_source":{},"track_source":{},)"
       R"("frame_rate":{},"first_frame":{},"take_frames":{},"frame_step":{},)"
       R"("num_frames":{},"num_points":{},"note":{},"has_truth":{},)"
-      R"("has_confidence":{},"labels":[{}],"sticks":[{}],"arrays":{{{}}}}})",
+      R"("has_confidence":{},"has_mesh":{},"mesh_source":{},"mesh_step":{},)"
+      R"("mesh_unit":"{}","labels":[{}],"sticks":[{}],"arrays":{{{}}}}})",
       JsonString(frames.title),
       JsonString(frames.source),
       JsonString(frames.truth_source),
@@ -366,6 +458,10 @@ std::string PackViewData(const ViewFrames& frames,
       JsonString(local.note),
       frames.has_truth(),
       frames.has_confidence(),
+      frames.has_mesh(),
+      JsonString(frames.mesh_source),
+      frames.mesh_step,
+      mesh_unit,
       labels_json,
       sticks_json,
       arrays);

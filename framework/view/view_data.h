@@ -18,6 +18,11 @@
 //                         ground truth), confidence (uint16: round(c * 65534),
 //                         65535 = unknown; with confidences), track (int16 or
 //                         int32: trajectory id, -1 = unknown)
+//   body meshes (with a solve): mesh_faces (uint16 or uint32, 3 F vertex
+//                         ids), mesh_frame (uint32: the take frame of each
+//                         mesh), mesh_vertices (int16 millimetres, rounded,
+//                         or float32 metres when a coordinate is beyond
+//                         +-32.7 m: 3 V per mesh)
 #pragma once
 
 #include <array>
@@ -76,6 +81,17 @@ struct ViewFrames {
   std::vector<float> confidence;    ///< P in [0, 1] (NaN unknown)
   std::vector<int> track;           ///< P trajectory ids (-1 unknown)
 
+  /// Optional body meshes (a `soma solve` fit), drawn semi-transparent:
+  /// triangles (3 F vertex ids), and per mesh its take frame (ascending)
+  /// and posed vertices (3 V, metres). `mesh_step`: take frames between two
+  /// meshes (the page shows a mesh within that distance of the frame).
+  std::vector<int> mesh_faces;
+  std::vector<int> mesh_frames;
+  std::vector<std::vector<float>> mesh_vertices;
+  int mesh_step = 1;
+  std::string mesh_source;
+  bool has_mesh() const { return !mesh_frames.empty(); }
+
   int num_frames() const { return static_cast<int>(offsets.size()) - 1; }
   /// Points of the closed frames.
   int64_t num_points() const { return offsets.back(); }
@@ -119,9 +135,20 @@ struct ViewDataSummary {
   std::string note;  ///< the subsampling note shown in the page ("" if none)
 };
 
-/// Base64 bytes of the arrays of the frames t = 0, step, 2 step, ...
-/// (the estimate ChooseFrameStep compares with the budget).
+/// Base64 bytes of the arrays of the frames t = 0, step, 2 step, ... and of
+/// the meshes (the estimate ChooseFrameStep compares with the budget).
 int64_t EstimateDataBytes(const ViewFrames& frames, int step);
+
+/// Base64 bytes of `num_meshes` meshes of `num_vertices` vertices and
+/// `num_faces` triangles (int16 vertices).
+int64_t EstimateMeshBytes(int num_vertices, int num_faces, int num_meshes);
+
+/// The smallest k >= 1 such that every k-th of `num_candidates` meshes fits
+/// `budget_bytes`; 0 when not even one mesh does.
+int ChooseMeshStep(int num_vertices,
+                   int num_faces,
+                   int num_candidates,
+                   int64_t budget_bytes);
 
 /// The smallest step k >= 1 whose page (data + template + 64 KiB for the
 /// JSON's other fields) fits `options.max_page_bytes`. ConfigError if not

@@ -13,7 +13,9 @@ browser (Debian's chromium, headless; scripts/install_deps.sh installs it).
    its wrong + ghost + missed count must equal eval's errors (> 0); frame 0
    (100% in eval) must show no error.
    With task.max_page_mb=2 the page (under 2 MB) shows every k-th frame,
-   says so in its note, and #frame=N shows the nearest shown frame.
+   says so in its note, and #frame=N shows the nearest shown frame. With a
+   `soma solve` of frames 0-119 (task.solve), the page shows the body mesh
+   of frame 60 at #frame=60 and none at #frame=1000.
 3. chromium --screenshot of frame N and of frame 0: the 3D view of frame N
    must hold pixels of the wrong-label red or the ghost orange, frame 0's
    none. Both PNGs stay in <build>/tests/view_browser/ as artefacts.
@@ -42,8 +44,14 @@ def fail(message):
     sys.exit(1)
 
 
+SECONDS = {}  # wall time per program, for the summary line
+
+
 def run(cmd, **kwargs):
+    start = time.time()
     result = subprocess.run(cmd, capture_output=True, text=True, **kwargs)
+    key = os.path.basename(cmd[0]) + ("" if "chromium" in cmd[0] else " " + cmd[1])
+    SECONDS[key] = SECONDS.get(key, 0.0) + time.time() - start
     if result.returncode != 0:
         fail(f"{' '.join(cmd)} exited {result.returncode}:\n{result.stdout[-2000:]}{result.stderr[-2000:]}")
     return result.stdout
@@ -194,6 +202,17 @@ def main():
         if f"1 frame in {step} is shown" not in dom or '<div id="note" hidden' in dom:
             fail("task.max_page_mb=2: the page does not show its subsampling note")
 
+        # A body fit of the first 120 frames: meshes near those frames only.
+        run([soma, "solve", labelled, "solver.end=120", "threads=1", f"hydra.run.dir={work}/solve"])
+        run([soma, "view", labelled, f"task.solve={work}/solve/{TAKE}_labeled_stageii.h5", "threads=1",
+             f"hydra.run.dir={work}/view_body"])
+        body_url = f"file://{os.path.abspath(work)}/view_body/{TAKE}_labeled.html"
+        for frame, mesh in ((60, "60"), (1000, "")):
+            body = page_status(chromium, profile, f"{body_url}#frame={frame}")
+            if body.get("data-mesh-frame") != mesh or body.get("data-webgl") != "ok":
+                fail(f"body page #frame={frame}: mesh frame {body.get('data-mesh-frame')!r} "
+                     f"(webgl {body.get('data-webgl')}), expected {mesh!r}")
+
         # 3. What the 3D view shows.
         shot = os.path.join(artefacts, f"{TAKE}_frame{error_frame}.png")
         shot_clean = os.path.join(artefacts, f"{TAKE}_frame0.png")
@@ -211,7 +230,8 @@ def main():
               f"{status['data-frame-points']} points, {shown_errors} errors "
               f"({status['data-frame-wrong']} wrong, {status['data-frame-ghost']} ghosts, "
               f"{status['data-frame-missed']} missed) = soma eval's; {flagged} red/orange px "
-              f"(frame 0: {flagged_clean}); page {size_mb:.1f} MB; {time.time() - start:.1f} s; "
+              f"(frame 0: {flagged_clean}); page {size_mb:.1f} MB; {time.time() - start:.1f} s (" +
+              ", ".join(f"{k} {v:.1f} s" for k, v in SECONDS.items()) + "); "
               f"screenshots in {artefacts}")
     finally:
         shutil.rmtree(work, ignore_errors=True)

@@ -310,6 +310,87 @@ TEST(PackViewData, SubsamplesEveryKthFrameAndSaysSo) {
   EXPECT_LE(summary.data_bytes, options.max_page_bytes);
 }
 
+/// Two triangles over 4 vertices, a mesh on take frames 0 and 3.
+void AddMeshes(ViewFrames* v, float offset = 0.0f) {
+  v->mesh_faces = {0, 1, 2, 0, 2, 3};
+  v->mesh_frames = {0, 3};
+  v->mesh_step = 3;
+  v->mesh_source = "fit.h5";
+  for (int m = 0; m < 2; ++m) {
+    std::vector<float> coords;
+    for (int k = 0; k < 12; ++k) coords.push_back(offset + 0.0014f * k + m);
+    v->mesh_vertices.push_back(coords);
+  }
+}
+
+TEST(PackViewData, MeshesAsFacesFramesAndMillimetreVertices) {
+  ViewFrames v = MakeFrames(5, false, false);
+  AddMeshes(&v);
+  ViewDataSummary summary;
+  const ConfigNode page = ParseYaml(PackViewData(v, {}, &summary), "p.json");
+  EXPECT_TRUE(page.at("has_mesh").AsBool());
+  EXPECT_EQ(page.at("mesh_unit").AsString(), "mm");
+  EXPECT_EQ(page.at("mesh_step").AsInt(), 3);
+  EXPECT_EQ(page.at("mesh_source").AsString(), "fit.h5");
+  EXPECT_THAT(DecodeArray<uint16_t>(page, "mesh_faces", "uint16"),
+              ElementsAre(0, 1, 2, 0, 2, 3));
+  EXPECT_THAT(DecodeArray<uint32_t>(page, "mesh_frame", "uint32"),
+              ElementsAre(0, 3));
+  const auto mm = DecodeArray<int16_t>(page, "mesh_vertices", "int16");
+  ASSERT_EQ(mm.size(), 24u);
+  for (size_t i = 0; i < mm.size(); ++i) {  // rounded to the millimetre
+    EXPECT_EQ(mm[i], std::lround(1000.0f * v.mesh_vertices[i / 12][i % 12]));
+  }
+  EXPECT_EQ(mm[1], 1);  // 1.4 mm
+  EXPECT_EQ(mm[12], 1000);
+  // The meshes count against the page budget.
+  ViewFrames plain = MakeFrames(5, false, false);
+  EXPECT_EQ(EstimateDataBytes(v, 1) - EstimateDataBytes(plain, 1),
+            EstimateMeshBytes(4, 2, 2));
+}
+
+TEST(PackViewData, FarMeshesFallBackToFloatMetres) {
+  ViewFrames v = MakeFrames(5, false, false);
+  AddMeshes(&v, 40.0f);  // beyond the +-32.7 m of int16 millimetres
+  const ConfigNode page = ParseYaml(PackViewData(v, {}), "p.json");
+  EXPECT_EQ(page.at("mesh_unit").AsString(), "m");
+  const auto m = DecodeArray<float>(page, "mesh_vertices", "float32");
+  EXPECT_EQ(m[5], v.mesh_vertices[0][5]);
+}
+
+TEST(ViewFrames, ValidateRejectsInconsistentMeshes) {
+  ViewFrames v = MakeFrames(5, false, false);
+  AddMeshes(&v);
+  EXPECT_NO_THROW(v.Validate());
+  ViewFrames bad = v;
+  bad.mesh_faces.push_back(4);  // no vertex 4; and not a multiple of 3
+  EXPECT_THROW(bad.Validate(), ShapeError);
+  bad = v;
+  bad.mesh_faces[0] = 4;
+  EXPECT_THAT(ErrorMessage<ShapeError>([&] { bad.Validate(); }),
+              HasSubstr("mesh face vertex 4"));
+  bad = v;
+  bad.mesh_frames = {3, 3};  // not ascending
+  EXPECT_THROW(bad.Validate(), ShapeError);
+  bad = v;
+  bad.mesh_frames = {0, 5};  // the take has frames 0..4
+  EXPECT_THROW(bad.Validate(), ShapeError);
+  bad = v;
+  bad.mesh_vertices[1].pop_back();
+  EXPECT_THROW(bad.Validate(), ShapeError);
+}
+
+TEST(ChooseMeshStep, IsTheSmallestStepThatFits) {
+  const int V = 7000, F = 13996, n = 120;
+  EXPECT_EQ(ChooseMeshStep(V, F, n, EstimateMeshBytes(V, F, n)), 1);
+  EXPECT_EQ(ChooseMeshStep(V, F, n, EstimateMeshBytes(V, F, n) - 1), 2);
+  EXPECT_EQ(ChooseMeshStep(V, F, n, EstimateMeshBytes(V, F, 12)), 10);
+  EXPECT_EQ(ChooseMeshStep(V, F, n, EstimateMeshBytes(V, F, 1)), n);
+  EXPECT_EQ(ChooseMeshStep(V, F, n, EstimateMeshBytes(V, F, 1) - 1), 0);
+  // 32-bit indices beyond 65535 vertices.
+  EXPECT_GT(EstimateMeshBytes(70000, 10, 0), EstimateMeshBytes(60000, 10, 0));
+}
+
 TEST(FillViewTemplate, ReplacesThePlaceholderOnce) {
   EXPECT_EQ(FillViewTemplate("<p>__SOMA_VIEW_DATA__</p>", "{}", "t.html"),
             "<p>{}</p>");

@@ -99,6 +99,7 @@ class Viewer {
     parts.push(`capture ${d.source}`);
     if (d.truth_source) parts.push(`ground truth ${d.truth_source}`);
     if (d.confidence_source) parts.push(`confidences ${d.confidence_source}`);
+    if (d.has_mesh) parts.push(`body ${d.mesh_source} (${d.mesh_frame.length} meshes, every ${d.mesh_step} frames)`);
     $('sources').textContent = parts.join(' · ');
     if (d.note) { $('note').textContent = d.note; $('note').hidden = false; }
     const slider = $('slider');
@@ -112,6 +113,8 @@ class Viewer {
     mode.addEventListener('change', () => { this.mode = mode.value; this.buildLegend(); this.updateFrame(); });
     $('show-sticks').addEventListener('change', () => this.updateFrame());
     $('show-null').addEventListener('change', () => this.updateFrame());
+    $('mesh-toggle').hidden = !d.has_mesh;
+    $('show-mesh').addEventListener('change', () => this.updateFrame());
     window.addEventListener('keydown', (e) => {
       if (e.target.tagName === 'SELECT' || e.target.tagName === 'INPUT' && e.target.type !== 'range') return;
       if (e.code === 'Space') { e.preventDefault(); this.setPlaying(!this.playing); }
@@ -185,6 +188,7 @@ class Viewer {
     controls.target.set(center.x, center.y, Math.max(center.z, 0.9));
     controls.enableDamping = false;
     controls.update();
+    controls.addEventListener('change', () => { this.dirty = true; });
     this.controls = controls;
 
     const n = Math.max(d.maxPoints, 1);
@@ -221,6 +225,19 @@ class Viewer {
     this.sticks.frustumCulled = false;
     scene.add(this.sticks);
 
+    if (d.has_mesh) {
+      // The solve's body: one geometry whose vertices change with the frame.
+      this.meshVertexCount = d.mesh_vertices.length / d.mesh_frame.length / 3;
+      const geometry = new THREE.BufferGeometry();
+      geometry.setAttribute('position', new THREE.BufferAttribute(new Float32Array(3 * this.meshVertexCount), 3).setUsage(THREE.DynamicDrawUsage));
+      geometry.setIndex(new THREE.BufferAttribute(d.mesh_faces, 1));
+      this.body = new THREE.Mesh(geometry, new THREE.MeshStandardMaterial({
+        color: 0xd9c2a7, roughness: 0.8, transparent: true, opacity: 0.35, depthWrite: false, side: THREE.DoubleSide }));
+      this.body.frustumCulled = false;
+      this.body.visible = false;
+      this.bodyMesh = -1;
+      scene.add(this.body);
+    }
     const canvasEl = canvas;
     canvasEl.addEventListener('mousemove', (e) => this.hover(e));
     canvasEl.addEventListener('mouseleave', () => { $('tooltip').hidden = true; });
@@ -234,6 +251,7 @@ class Viewer {
     this.renderer.setSize(w, h, false);
     this.camera.aspect = w / h;
     this.camera.updateProjectionMatrix();
+    this.dirty = true;
   }
 
   setPlaying(playing) {
@@ -332,6 +350,32 @@ class Viewer {
     }
     this.sticks.geometry.setDrawRange(0, 2 * k);
     this.sticks.geometry.attributes.position.needsUpdate = true;
+    this.updateBody();
+    this.dirty = true;
+  }
+
+  // The mesh nearest the frame, if one is within mesh_step frames.
+  updateBody() {
+    const d = this.data;
+    if (!this.body) return;
+    const t = d.frame[this.frame];
+    let best = -1;
+    for (let lo = 0, hi = d.mesh_frame.length - 1; lo <= hi;) {
+      const mid = (lo + hi) >> 1;
+      if (d.mesh_frame[mid] <= t) { best = mid; lo = mid + 1; } else hi = mid - 1;
+    }
+    if (best + 1 < d.mesh_frame.length && (best < 0 || d.mesh_frame[best + 1] - t < t - d.mesh_frame[best])) best++;
+    const near = best >= 0 && Math.abs(d.mesh_frame[best] - t) <= d.mesh_step;
+    this.body.visible = near && $('show-mesh').checked;
+    this.status.dataset.meshFrame = near ? String(d.mesh_frame[best]) : '';
+    if (!near || best === this.bodyMesh) return;
+    this.bodyMesh = best;
+    const n = 3 * this.meshVertexCount;
+    const scale = d.mesh_unit === 'mm' ? 0.001 : 1;
+    const position = this.body.geometry.attributes.position;
+    for (let i = 0; i < n; i++) position.array[i] = d.mesh_vertices[best * n + i] * scale;
+    position.needsUpdate = true;
+    this.body.geometry.computeVertexNormals();
   }
 
   hover(e) {
@@ -483,7 +527,11 @@ class Viewer {
         this.seek((this.frame + steps) % this.data.num_frames);
       }
     }
-    if (this.renderer) this.renderer.render(this.scene, this.camera);
+    // Render only when something changed (a frame, the camera, the size).
+    if (this.renderer && this.dirty) {
+      this.renderer.render(this.scene, this.camera);
+      this.dirty = false;
+    }
     requestAnimationFrame((t) => this.tick(t));
   }
 }
