@@ -316,23 +316,39 @@ class EvalTask : public Task {
     settings.inputs.sidecar = FindSidecar(options_.rec[r]);
     settings.inputs.tolerance = options_.tolerance;
     settings.max_page_mb = options_.view_max_page_mb;
-    const ViewPageResult page =
-        WriteViewPage(cfg, settings, ctx.output_dir / relative, ctx);
-    SOMA_LOG(INFO,
-             "eval: the soma view page of {} is {} ({:.1f} MB)",
-             options_.rec[r],
-             page.path.string(),
-             page.bytes / 1e6);
+    // The page is an aid: when it cannot be written (e.g. a layout the
+    // sticks cannot be built from), the evaluation still succeeds and the
+    // worst frames are listed without links.
+    bool have_page = true;
+    try {
+      const ViewPageResult page =
+          WriteViewPage(cfg, settings, ctx.output_dir / relative, ctx);
+      SOMA_LOG(INFO,
+               "eval: the soma view page of {} is {} ({:.1f} MB)",
+               options_.rec[r],
+               page.path.string(),
+               page.bytes / 1e6);
+    } catch (const Error& e) {
+      have_page = false;
+      SOMA_LOG(WARNING,
+               "eval: no soma view page for {}: {}",
+               options_.rec[r],
+               e.what());
+    }
     std::sort(frame_accuracy.begin(), frame_accuracy.end());
-    std::string md = fmt::format("`{}` ([page]({})):", stem, relative.string());
+    std::string md =
+        have_page ? fmt::format("`{}` ([page]({})):", stem, relative.string())
+                  : fmt::format("`{}` (no page, see the log):", stem);
     int listed = 0;
     for (const auto& [accuracy, t, pairs] : frame_accuracy) {
       if (listed == options_.worst_frames || accuracy >= 1.0) break;
-      md += fmt::format("{} [frame {}]({}#frame={}) {:.1f}% of {}",
+      const std::string frame =
+          have_page
+              ? fmt::format("[frame {}]({}#frame={})", t, relative.string(), t)
+              : fmt::format("frame {}", t);
+      md += fmt::format("{} {} {:.1f}% of {}",
                         listed == 0 ? "" : ";",
-                        t,
-                        relative.string(),
-                        t,
+                        frame,
                         100.0 * accuracy,
                         pairs);
       ++listed;
