@@ -6,7 +6,7 @@ browser (Debian's chromium, headless; scripts/install_deps.sh installs it).
    (OC_05_G_03_BT_00), labels it per frame with the bundled model and scores
    it (per_frame/per_frame.csv); `soma view` writes the page of the labelled
    C3D with the corruption's ground truth (and the sidecar's confidences).
-2. chromium --dump-dom loads the page: the counts the page writes into the
+2. chromium --dump-dom loads the page (hovering an error with &hover=error): the counts the page writes into the
    data-* attributes of #status must equal the sidecar's (h5py: frames,
    points per frame, points in all), and at `#frame=N` for the first frame
    that soma eval scored below 100%, the page's accuracy must equal eval's and
@@ -156,7 +156,7 @@ def main():
         profile = f"{work}/profile"
         os.makedirs(profile)
         url = f"file://{os.path.abspath(page)}"
-        status = page_status(chromium, profile, f"{url}#frame={error_frame}")
+        status = page_status(chromium, profile, f"{url}#frame={error_frame}&hover=error")
         expect = {
             "data-frames": str(frames),
             "data-shown-frames": str(frames),
@@ -173,6 +173,15 @@ def main():
             fail(f"#frame={error_frame}: the page shows {shown_errors} errors, soma eval counts {errors}")
         if abs(float(status["data-frame-accuracy"]) - error_row["accuracy"]) > 1e-6:
             fail(f"#frame={error_frame}: accuracy {status['data-frame-accuracy']}, soma eval {error_row['accuracy']}")
+        # Hovering (a real mousemove at the marker's projection) a point that
+        # is labelled wrong shows its label, its true label, the error, its
+        # confidence and trajectory.
+        tip = dict(line.split(None, 1) if " " in line else (line, "")
+                   for line in status.get("data-hover", "").replace("true label", "true_label").splitlines())
+        if tip.get("status", "").strip() not in ("WRONG", "ghost labelled as marker", "missed (labelled null)") or \
+                tip.get("label") == tip.get("true_label") or "confidence" not in tip or \
+                not tip.get("trajectory", "").strip().lstrip("-").isdigit():
+            fail(f"#frame={error_frame}&hover=error: tooltip {status.get('data-hover')!r}")
         clean = page_status(chromium, profile, f"{url}#frame=0")
         clean_errors = sum(int(clean[k]) for k in ("data-frame-wrong", "data-frame-ghost", "data-frame-missed"))
         if clean.get("data-frame") != "0" or clean_errors != 0:
@@ -229,7 +238,8 @@ def main():
         print(f"ok (subsampled page: 1 frame in {step}): {frames} frames, {int(points_per_frame.sum())} points; frame {error_frame}: "
               f"{status['data-frame-points']} points, {shown_errors} errors "
               f"({status['data-frame-wrong']} wrong, {status['data-frame-ghost']} ghosts, "
-              f"{status['data-frame-missed']} missed) = soma eval's; {flagged} red/orange px "
+              f"{status['data-frame-missed']} missed) = soma eval's; hover: {tip['label'].strip()} (true "
+              f"{tip['true_label'].strip()}, {tip['status'].strip()}); {flagged} red/orange px "
               f"(frame 0: {flagged_clean}); page {size_mb:.1f} MB; {time.time() - start:.1f} s (" +
               ", ".join(f"{k} {v:.1f} s" for k, v in SECONDS.items()) + "); "
               f"screenshots in {artefacts}")

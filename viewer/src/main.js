@@ -7,7 +7,8 @@
 // data-frame, data-frame-points, data-frame-wrong, data-frame-ghost,
 // data-frame-missed, data-frame-accuracy, data-webgl) and `window.somaView`.
 // The URL hash `#frame=N` (0-based take frame) opens the page paused there;
-// `&mode=label|confidence|correctness` picks the colour mode.
+// `&mode=label|confidence|correctness` picks the colour mode, and
+// `&hover=error|wrong|ghost|missed|<i>` hovers that point (data-hover).
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { decodeViewData, frameCounts, shownFrameOf, STATUS, UNKNOWN_CONFIDENCE } from './data.js';
@@ -81,6 +82,7 @@ class Viewer {
       if (h.frame !== undefined) { this.setPlaying(false); this.seek(shownFrameOf(data, Number(h.frame) || 0)); }
     });
     this.last = performance.now();
+    if (hash.hover !== undefined && this.renderer) this.hoverPoint(hash.hover);
     requestAnimationFrame((t) => this.tick(t));
     this.status.dataset.ready = '1';
   }
@@ -376,6 +378,28 @@ class Viewer {
     for (let i = 0; i < n; i++) position.array[i] = d.mesh_vertices[best * n + i] * scale;
     position.needsUpdate = true;
     this.body.geometry.computeVertexNormals();
+  }
+
+  // `#hover=error|wrong|ghost|missed|<point index>`: hovers the first such point
+  // of the frame through a real mouse event, as a user would (for scripts:
+  // the tooltip text lands in data-hover).
+  hoverPoint(which) {
+    const d = this.data;
+    const kinds = { error: [STATUS.WRONG, STATUS.GHOST, STATUS.MISSED], wrong: [STATUS.WRONG], ghost: [STATUS.GHOST], missed: [STATUS.MISSED] };
+    const wanted = kinds[which];
+    let target = -1;
+    for (let i = d.offset[this.frame]; i < d.offset[this.frame + 1]; i++) {
+      const hit = wanted === undefined ? i - d.offset[this.frame] === Number(which) : d.has_truth && wanted.includes(d.status[i]);
+      if (hit) { target = i; break; }
+    }
+    if (target < 0) { this.status.dataset.hover = ''; return; }
+    this.resize();
+    this.camera.updateMatrixWorld();
+    const v = new THREE.Vector3(d.position[3 * target], d.position[3 * target + 1], d.position[3 * target + 2]).project(this.camera);
+    const r = $('canvas').getBoundingClientRect();
+    $('canvas').dispatchEvent(new MouseEvent('mousemove', {
+      clientX: r.left + (v.x * 0.5 + 0.5) * r.width, clientY: r.top + (-v.y * 0.5 + 0.5) * r.height, bubbles: true }));
+    this.status.dataset.hover = $('tooltip').hidden ? '' : $('tooltip').textContent;
   }
 
   hover(e) {
