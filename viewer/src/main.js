@@ -397,8 +397,11 @@ class Viewer {
     this.camera.updateMatrixWorld();
     const v = new THREE.Vector3(d.position[3 * target], d.position[3 * target + 1], d.position[3 * target + 2]).project(this.camera);
     const r = $('canvas').getBoundingClientRect();
-    $('canvas').dispatchEvent(new MouseEvent('mousemove', {
-      clientX: r.left + (v.x * 0.5 + 0.5) * r.width, clientY: r.top + (-v.y * 0.5 + 0.5) * r.height, bubbles: true }));
+    const x = r.left + (v.x * 0.5 + 0.5) * r.width, y = r.top + (-v.y * 0.5 + 0.5) * r.height;
+    // To whatever is on top there, as the browser would (an overlay that
+    // hides the canvas from the mouse fails this).
+    const under = document.elementFromPoint(x, y);
+    if (under) under.dispatchEvent(new MouseEvent('mousemove', { clientX: x, clientY: y, bubbles: true }));
     this.status.dataset.hover = $('tooltip').hidden ? '' : $('tooltip').textContent;
   }
 
