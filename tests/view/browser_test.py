@@ -15,7 +15,8 @@ browser (Debian's chromium, headless; scripts/install_deps.sh installs it).
    With task.max_page_mb=2 the page (under 2 MB) shows every k-th frame,
    says so in its note, and #frame=N shows the nearest shown frame. With a
    `soma solve` of frames 0-119 (task.solve), the page shows the body mesh
-   of frame 60 at #frame=60 and none at #frame=1000.
+   of frame 60 at #frame=60, and after a click a quarter into the timeline
+   strip (#timeline=0.25) frame T/4 and no mesh.
 3. chromium --screenshot of frame N and of frame 0: the 3D view of frame N
    must hold pixels of the wrong-label red or the ghost orange, frame 0's
    none. Both PNGs stay in <build>/tests/view_browser/ as artefacts.
@@ -216,11 +217,16 @@ def main():
         run([soma, "view", labelled, f"task.solve={work}/solve/{TAKE}_labeled_stageii.h5", "threads=1",
              f"hydra.run.dir={work}/view_body"])
         body_url = f"file://{os.path.abspath(work)}/view_body/{TAKE}_labeled.html"
-        for frame, mesh in ((60, "60"), (1000, "")):
-            body = page_status(chromium, profile, f"{body_url}#frame={frame}")
-            if body.get("data-mesh-frame") != mesh or body.get("data-webgl") != "ok":
-                fail(f"body page #frame={frame}: mesh frame {body.get('data-mesh-frame')!r} "
-                     f"(webgl {body.get('data-webgl')}), expected {mesh!r}")
+        # (#timeline=0.25: a click a quarter into the timeline strip jumps to
+        # frame floor(0.25 F), far from the fitted frames.)
+        quarter = frames // 4
+        for query, frame, mesh in (("frame=60", 60, "60"), ("frame=60&timeline=0.25", quarter, "")):
+            body = page_status(chromium, profile, f"{body_url}#{query}")
+            if body.get("data-frame") != str(frame) or body.get("data-mesh-frame") != mesh or \
+                    body.get("data-webgl") != "ok":
+                fail(f"body page #{query}: frame {body.get('data-frame')}, mesh frame "
+                     f"{body.get('data-mesh-frame')!r} (webgl {body.get('data-webgl')}), "
+                     f"expected frame {frame}, mesh {mesh!r}")
 
         # 3. What the 3D view shows.
         shot = os.path.join(artefacts, f"{TAKE}_frame{error_frame}.png")

@@ -8,7 +8,8 @@
 // data-frame-missed, data-frame-accuracy, data-webgl) and `window.somaView`.
 // The URL hash `#frame=N` (0-based take frame) opens the page paused there;
 // `&mode=label|confidence|correctness` picks the colour mode, and
-// `&hover=error|wrong|ghost|missed|<i>` hovers that point (data-hover).
+// `&hover=error|wrong|ghost|missed|<i>` hovers that point (data-hover),
+// `&timeline=<fraction>` clicks the timeline strip there.
 import * as THREE from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { decodeViewData, frameCounts, shownFrameOf, STATUS, UNKNOWN_CONFIDENCE } from './data.js';
@@ -82,6 +83,7 @@ class Viewer {
       if (h.frame !== undefined) { this.setPlaying(false); this.seek(shownFrameOf(data, Number(h.frame) || 0)); }
     });
     this.last = performance.now();
+    if (hash.timeline !== undefined) this.clickTimeline(Number(hash.timeline));
     if (hash.hover !== undefined && this.renderer) this.hoverPoint(hash.hover);
     requestAnimationFrame((t) => this.tick(t));
     this.status.dataset.ready = '1';
@@ -378,6 +380,17 @@ class Viewer {
     for (let i = 0; i < n; i++) position.array[i] = d.mesh_vertices[best * n + i] * scale;
     position.needsUpdate = true;
     this.body.geometry.computeVertexNormals();
+  }
+
+  // `#timeline=<fraction>`: a mouse click on the timeline strip at that
+  // fraction of its width (to the element under the point, as a user's).
+  clickTimeline(fraction) {
+    const r = $('timeline').getBoundingClientRect();
+    const x = r.left + Math.max(0, Math.min(1, fraction)) * r.width, y = r.top + r.height / 2;
+    const under = document.elementFromPoint(x, y);
+    if (!under) return;
+    under.dispatchEvent(new MouseEvent('mousedown', { clientX: x, clientY: y, bubbles: true }));
+    window.dispatchEvent(new MouseEvent('mouseup', { clientX: x, clientY: y }));
   }
 
   // `#hover=error|wrong|ghost|missed|<point index>`: hovers the first such point
