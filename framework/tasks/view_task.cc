@@ -86,25 +86,29 @@ class ViewTask : public Task {
              page.bytes / 1e6,
              timer.ElapsedSeconds());
     if (!inputs.truth.empty()) {
-      const auto& n = summary.status_counts;
+      const auto count = [&](PointStatus status) {
+        return summary.status_counts[static_cast<size_t>(status)];
+      };
       SOMA_LOG(INFO,
                "view: shown points against ground truth: {} correct, {} "
                "wrong, {} ghosts labelled as markers, {} missed, {} without "
                "ground truth",
-               n[int(PointStatus::kCorrect)],
-               n[int(PointStatus::kWrong)],
-               n[int(PointStatus::kGhostAsMarker)],
-               n[int(PointStatus::kMissed)],
-               n[int(PointStatus::kNoTruth)]);
-      ctx.ReportMetric("wrong", double(n[int(PointStatus::kWrong)]));
+               count(PointStatus::kCorrect),
+               count(PointStatus::kWrong),
+               count(PointStatus::kGhostAsMarker),
+               count(PointStatus::kMissed),
+               count(PointStatus::kNoTruth));
+      ctx.ReportMetric("wrong",
+                       static_cast<double>(count(PointStatus::kWrong)));
       ctx.ReportMetric("ghost_as_marker",
-                       double(n[int(PointStatus::kGhostAsMarker)]));
-      ctx.ReportMetric("missed", double(n[int(PointStatus::kMissed)]));
+                       static_cast<double>(count(PointStatus::kGhostAsMarker)));
+      ctx.ReportMetric("missed",
+                       static_cast<double>(count(PointStatus::kMissed)));
     }
     ctx.ReportMetric("frames", summary.take_frames);
     ctx.ReportMetric("shown_frames", summary.shown_frames);
     ctx.ReportMetric("frame_step", summary.frame_step);
-    ctx.ReportMetric("points", double(summary.shown_points));
+    ctx.ReportMetric("points", static_cast<double>(summary.shown_points));
     ctx.ReportMetric("page_mb", page.bytes / 1e6);
   }
 

@@ -30,7 +30,7 @@ struct LabeledPoints {
 /// A C3D column label as a class name: canonical marker name, or "" (null)
 /// for unlabelled columns (`*12`, empty).
 std::string ClassOfColumn(const std::string& label) {
-  const std::string canonical = CanonicalMarkerLabel(label);
+  std::string canonical = CanonicalMarkerLabel(label);
   if (canonical.empty() || canonical[0] == '*') return "";
   return canonical;
 }
@@ -150,7 +150,8 @@ std::vector<LabeledPoints> ReadSidecar(const fs::path& path) {
     for (int n = 0; n < N; ++n) {
       const size_t i = static_cast<size_t>(t) * N + n;
       if (column[i] < 0) continue;  // padding
-      frames[t].points.emplace_back(p[3 * n], p[3 * n + 1], p[3 * n + 2]);
+      const float* x = p + size_t{3} * n;
+      frames[t].points.emplace_back(x[0], x[1], x[2]);
       frames[t].labels.push_back(ids[n] < info.num_labels()
                                      ? CanonicalMarkerLabel(info.labels[ids[n]])
                                      : "");
@@ -237,7 +238,8 @@ ViewFrames ReadViewFrames(const ViewInputs& inputs) {
     }
   };
   const std::vector<bool> is_output = ModelOutputColumns(c3d);
-  for (int k = 0; k < c3d.num_points && k < int(c3d.labels.size()); ++k) {
+  const int labelled = static_cast<int>(c3d.labels.size());
+  for (int k = 0; k < c3d.num_points && k < labelled; ++k) {
     if (!is_output[k]) add_label(ClassOfColumn(c3d.labels[k]));
   }
   for (const auto* source : {&sidecar, &truth}) {

@@ -12,7 +12,7 @@
 namespace soma {
 namespace {
 
-constexpr int64_t kJsonOverheadBytes = 64 * 1024;  // meta fields, labels
+constexpr int64_t kJsonOverheadBytes = int64_t{64} * 1024;  // meta, labels
 constexpr uint16_t kUnknownConfidence = 65535;
 
 int64_t Base64Size(int64_t bytes) { return (bytes + 2) / 3 * 4; }
