@@ -19,10 +19,28 @@ namespace {
 
 namespace fs = std::filesystem;
 
-/// Points of one frame (metres) with a label name each ("" = null).
+/// Label names to ids in the order they are first seen.
+class LabelIds {
+ public:
+  /// The id of `name`, a new one if unseen; -1 (null) for "".
+  int Id(const std::string& name) {
+    if (name.empty()) return -1;
+    const auto [it, added] =
+        ids_.emplace(name, static_cast<int>(names_.size()));
+    if (added) names_.push_back(name);
+    return it->second;
+  }
+  const std::vector<std::string>& names() const { return names_; }
+
+ private:
+  std::map<std::string, int> ids_;
+  std::vector<std::string> names_;
+};
+
+/// Points of one frame (metres) with a label id each (-1 = null).
 struct LabeledPoints {
   std::vector<Eigen::Vector3d> points;
-  std::vector<std::string> labels;
+  std::vector<int> labels;
   std::vector<int> columns;  // input column (track id), -1 unknown
   std::vector<float> confidences;
 };
@@ -60,33 +78,64 @@ std::vector<bool> ModelOutputColumns(const C3dData& c3d) {
   return is_output;
 }
 
+/// The label id of each C3D column (its class, registered in column order;
+/// -1 null), or kOutputColumn for the model outputs that are left out.
+constexpr int kOutputColumn = -2;
+std::vector<int> ColumnIds(const C3dData& c3d, LabelIds& ids) {
+  const std::vector<bool> is_output = ModelOutputColumns(c3d);
+  std::vector<int> column_ids(c3d.num_points, -1);
+  for (int k = 0; k < c3d.num_points; ++k) {
+    if (is_output[k]) {
+      column_ids[k] = kOutputColumn;
+    } else if (k < static_cast<int>(c3d.labels.size())) {
+      column_ids[k] = ids.Id(ClassOfColumn(c3d.labels[k]));
+    }
+  }
+  return column_ids;
+}
+
 /// Per frame: the present points of a C3D (model outputs left out) and
 /// their column classes.
-std::vector<LabeledPoints> C3dPoints(const C3dData& c3d) {
+std::vector<LabeledPoints> C3dPoints(const C3dData& c3d, LabelIds& ids) {
   const double to_metres = c3d.MetresPerUnit();
-  const std::vector<bool> is_output = ModelOutputColumns(c3d);
-  std::vector<std::string> classes(c3d.num_points);
-  for (int k = 0; k < c3d.num_points; ++k) {
-    classes[k] = k < static_cast<int>(c3d.labels.size())
-                     ? ClassOfColumn(c3d.labels[k])
-                     : "";
-  }
+  const std::vector<int> column_ids = ColumnIds(c3d, ids);
   std::vector<LabeledPoints> frames(c3d.num_frames);
   for (int t = 0; t < c3d.num_frames; ++t) {
     for (int k = 0; k < c3d.num_points; ++k) {
-      if (is_output[k] || !IsPresent(c3d, t, k)) continue;
+      if (column_ids[k] == kOutputColumn || !IsPresent(c3d, t, k)) continue;
       frames[t].points.push_back(c3d.Point(t, k).cast<double>() * to_metres);
-      frames[t].labels.push_back(classes[k]);
+      frames[t].labels.push_back(column_ids[k]);
       frames[t].columns.push_back(k);
     }
   }
   return frames;
 }
 
+/// Ids of a dataset's label names (canonical), registered when first used.
+class DatasetLabelIds {
+ public:
+  DatasetLabelIds(const DatasetInfo& info, LabelIds& ids)
+      : info_(info), ids_(ids), cache_(info.num_labels(), kUnseen) {}
+  /// The id of dataset label `id` (null = L = -1).
+  int operator()(int16_t id) {
+    if (id < 0 || id >= info_.num_labels()) return -1;
+    if (cache_[id] == kUnseen) {
+      cache_[id] = ids_.Id(CanonicalMarkerLabel(info_.labels[id]));
+    }
+    return cache_[id];
+  }
+
+ private:
+  static constexpr int kUnseen = -3;
+  const DatasetInfo& info_;
+  LabelIds& ids_;
+  std::vector<int> cache_;
+};
+
 /// A `soma corrupt` ground truth: points from `<stem>.c3d`, per-frame labels
 /// from `<stem>.h5`; or a labelled C3D.
-std::vector<LabeledPoints> ReadTruth(const fs::path& path) {
-  if (path.extension() == ".c3d") return C3dPoints(ReadC3d(path));
+std::vector<LabeledPoints> ReadTruth(const fs::path& path, LabelIds& ids) {
+  if (path.extension() == ".c3d") return C3dPoints(ReadC3d(path), ids);
   if (path.extension() != ".h5") {
     throw IoError(fmt::format(
         "{}: ground truth must be a soma corrupt .h5 (with its .c3d) or a "
@@ -119,14 +168,14 @@ std::vector<LabeledPoints> ReadTruth(const fs::path& path) {
   LabeledFrames gt;
   reader.Read(0, reader.num_frames(), &gt);
   const double to_metres = c3d.MetresPerUnit();
+  DatasetLabelIds label_id(info, ids);
   std::vector<LabeledPoints> frames(c3d.num_frames);
   for (int t = 0; t < c3d.num_frames; ++t) {
-    const int16_t* ids = gt.frame_labels(t);
+    const int16_t* labels = gt.frame_labels(t);
     for (int k = 0; k < c3d.num_points; ++k) {
       if (!IsPresent(c3d, t, k)) continue;
       frames[t].points.push_back(c3d.Point(t, k).cast<double>() * to_metres);
-      frames[t].labels.push_back(
-          ids[k] < info.num_labels() ? info.labels[ids[k]] : "");
+      frames[t].labels.push_back(label_id(labels[k]));
       frames[t].columns.push_back(k);
     }
   }
@@ -135,7 +184,7 @@ std::vector<LabeledPoints> ReadTruth(const fs::path& path) {
 
 /// A `soma label` sidecar: per frame its non-padding points, labels,
 /// confidences and input columns.
-std::vector<LabeledPoints> ReadSidecar(const fs::path& path) {
+std::vector<LabeledPoints> ReadSidecar(const fs::path& path, LabelIds& ids) {
   const DatasetReader reader(path);
   const DatasetInfo& info = reader.info();
   LabeledFrames data;
@@ -143,18 +192,17 @@ std::vector<LabeledPoints> ReadSidecar(const fs::path& path) {
   const std::vector<float> confidence = reader.ReadPointArray("confidence");
   const std::vector<float> column = reader.ReadPointArray("column");
   const int N = info.num_points;
+  DatasetLabelIds label_id(info, ids);
   std::vector<LabeledPoints> frames(reader.num_frames());
   for (int64_t t = 0; t < reader.num_frames(); ++t) {
     const float* p = data.frame_points(t);
-    const int16_t* ids = data.frame_labels(t);
+    const int16_t* labels = data.frame_labels(t);
     for (int n = 0; n < N; ++n) {
       const size_t i = static_cast<size_t>(t) * N + n;
       if (column[i] < 0) continue;  // padding
       const float* x = p + size_t{3} * n;
       frames[t].points.emplace_back(x[0], x[1], x[2]);
-      frames[t].labels.push_back(ids[n] < info.num_labels()
-                                     ? CanonicalMarkerLabel(info.labels[ids[n]])
-                                     : "");
+      frames[t].labels.push_back(label_id(labels[n]));
       frames[t].columns.push_back(static_cast<int>(column[i]));
       frames[t].confidences.push_back(confidence[i]);
     }
@@ -208,16 +256,18 @@ std::string FindSidecar(const std::string& capture) {
 }
 
 ViewFrames ReadViewFrames(const ViewInputs& inputs) {
+  // Label ids: capture columns, then sidecar labels, then ground truth.
+  LabelIds ids;
   const C3dData c3d = ReadC3d(inputs.capture);
-  const std::vector<LabeledPoints> shown = C3dPoints(c3d);
+  const std::vector<int> column_ids = ColumnIds(c3d, ids);
   std::vector<LabeledPoints> truth, sidecar;
-  if (!inputs.truth.empty()) {
-    truth = ReadTruth(inputs.truth);
-    CheckFrames(inputs.truth, truth.size(), inputs.capture, shown.size());
-  }
   if (!inputs.sidecar.empty()) {
-    sidecar = ReadSidecar(inputs.sidecar);
-    CheckFrames(inputs.sidecar, sidecar.size(), inputs.capture, shown.size());
+    sidecar = ReadSidecar(inputs.sidecar, ids);
+    CheckFrames(inputs.sidecar, sidecar.size(), inputs.capture, c3d.num_frames);
+  }
+  if (!inputs.truth.empty()) {
+    truth = ReadTruth(inputs.truth, ids);
+    CheckFrames(inputs.truth, truth.size(), inputs.capture, c3d.num_frames);
   }
 
   ViewFrames frames;
@@ -229,36 +279,18 @@ ViewFrames ReadViewFrames(const ViewInputs& inputs) {
   frames.first_frame = c3d.first_frame;
   frames.with_truth = !inputs.truth.empty();
   frames.with_confidence = !inputs.sidecar.empty();
-
-  // Label ids: capture columns, then sidecar labels, then ground truth.
-  std::map<std::string, int> ids;
-  auto add_label = [&](const std::string& name) {
-    if (!name.empty() && ids.emplace(name, frames.labels.size()).second) {
-      frames.labels.push_back(name);
-    }
-  };
-  const std::vector<bool> is_output = ModelOutputColumns(c3d);
-  const int labelled = static_cast<int>(c3d.labels.size());
-  for (int k = 0; k < c3d.num_points && k < labelled; ++k) {
-    if (!is_output[k]) add_label(ClassOfColumn(c3d.labels[k]));
-  }
-  for (const auto* source : {&sidecar, &truth}) {
-    for (const LabeledPoints& frame : *source) {
-      for (const std::string& label : frame.labels) add_label(label);
-    }
-  }
+  frames.labels = ids.names();
   const int L = static_cast<int>(frames.labels.size());
-  auto id_of = [&](const std::string& name) {
-    return name.empty() ? L : ids.at(name);
-  };
+  auto id_or_null = [L](int id) { return id < 0 ? L : id; };
 
+  const double to_metres = c3d.MetresPerUnit();
   int64_t from_sidecar = 0;
-  for (size_t t = 0; t < shown.size(); ++t) {
-    const LabeledPoints& frame = shown[t];
-    for (size_t i = 0; i < frame.points.size(); ++i) {
-      const Eigen::Vector3d& x = frame.points[i];
-      int label = id_of(frame.labels[i]);
-      int track = frame.columns[i];
+  for (int t = 0; t < c3d.num_frames; ++t) {
+    for (int k = 0; k < c3d.num_points; ++k) {
+      if (column_ids[k] == kOutputColumn || !IsPresent(c3d, t, k)) continue;
+      const Eigen::Vector3d x = c3d.Point(t, k).cast<double>() * to_metres;
+      int label = id_or_null(column_ids[k]);
+      int track = k;
       float confidence = std::numeric_limits<float>::quiet_NaN();
       if (!sidecar.empty()) {
         const int j =
@@ -267,13 +299,13 @@ ViewFrames ReadViewFrames(const ViewInputs& inputs) {
           ++from_sidecar;
           confidence = sidecar[t].confidences[j];
           track = sidecar[t].columns[j];
-          if (label == L) label = id_of(sidecar[t].labels[j]);
+          if (label == L) label = id_or_null(sidecar[t].labels[j]);
         }
       }
       int true_label = L + 1;
       if (!truth.empty()) {
         const int j = UniqueMatch(x, truth[t].points, inputs.tolerance);
-        if (j >= 0) true_label = id_of(truth[t].labels[j]);
+        if (j >= 0) true_label = id_or_null(truth[t].labels[j]);
       }
       const float position[3] = {static_cast<float>(x.x()),
                                  static_cast<float>(x.y()),
