@@ -5,7 +5,7 @@ include(CMakePackageConfigHelpers)
 # checkout's resources, so `<build>/soma` finds them beside itself wherever
 # the build directory is (framework/core/resources.h), with no source path
 # compiled in.
-foreach(_dir configs models data ablations)
+foreach(_dir configs models data ablations viewer)
   file(MAKE_DIRECTORY ${PROJECT_BINARY_DIR}/share/somalab)
   file(CREATE_LINK ${PROJECT_SOURCE_DIR}/${_dir}
        ${PROJECT_BINARY_DIR}/share/somalab/${_dir} SYMBOLIC)
@@ -32,6 +32,9 @@ install(DIRECTORY
   ${PROJECT_SOURCE_DIR}/data
   ${PROJECT_SOURCE_DIR}/ablations
   DESTINATION ${SOMA_INSTALL_DATADIR})
+# The page template of `soma view` (built from viewer/src, committed).
+install(FILES ${PROJECT_SOURCE_DIR}/viewer/soma_view.html
+  DESTINATION ${SOMA_INSTALL_DATADIR}/viewer)
 
 install(EXPORT somalabTargets
   NAMESPACE soma::

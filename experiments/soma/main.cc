@@ -33,7 +33,8 @@ int main(int argc, char** argv) {
         {"label", "input"},
         {"fit_layout", "input"},
         {"label_eval", "input"},
-        {"trim", "input"}};
+        {"trim", "input"},
+        {"view", "input"}};
     const auto positional = kPositional.find(args.front());
     if (positional != kPositional.end() && args.size() > 1 &&
         args[1].find('=') == std::string::npos && args[1].front() != '-') {

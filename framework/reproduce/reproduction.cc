@@ -19,6 +19,7 @@
 #include <optional>
 #include <set>
 #include <sstream>
+#include <tuple>
 
 namespace soma {
 namespace {
@@ -618,6 +619,97 @@ std::vector<CellResult> CollectResults(const AblationSpec& spec,
     }
   }
   return cells;
+}
+
+int WriteWorstFramesMarkdown(const AblationSpec& spec,
+                             const ReproductionPlan& plan,
+                             int per_evaluation,
+                             const fs::path& path) {
+  const fs::path base = fs::absolute(path).parent_path();
+  const auto link = [&](const fs::path& target) {
+    return fs::absolute(target).lexically_relative(base).generic_string();
+  };
+  std::ostringstream md;
+  md << "# " << spec.name << ": the worst frames of each evaluation\n\n"
+     << "Per trained model and test, the " << per_evaluation
+     << " frames with the lowest per-frame accuracy (`soma eval`'s "
+        "per_frame.csv), each a link into the `soma view` page of the "
+        "labelled output against the ground truth at that frame (red: wrong "
+        "labels, orange: ghosts labelled as markers, rings: missed markers; "
+        "README \"Look at the labels\"). Evaluations without a page (made "
+        "before `soma view` existed, or with task.view=false) link their "
+        "eval.md.\n\n"
+     << "| variant | seed | test | accuracy (mean over frames) | worst frames "
+        "|\n|---|---|---|---|---|\n";
+  int rows = 0;
+  for (const PlannedModel& m : plan.models) {
+    for (const AblationTest& test : spec.tests) {
+      const auto dir_it = m.eval_dirs.find(test.name);
+      if (dir_it == m.eval_dirs.end() || !RunDirDone(dir_it->second)) continue;
+      const fs::path& dir = dir_it->second;
+      // run,frame,pairs,accuracy,... rows of the first output (run 0).
+      std::vector<std::tuple<double, long, long>> frames;
+      if (fs::exists(dir / "per_frame.csv")) {
+        std::istringstream in(ReadFile(dir / "per_frame.csv"));
+        std::string line;
+        std::getline(in, line);
+        while (std::getline(in, line)) {
+          std::istringstream row(line);
+          std::string run, frame, pairs, accuracy;
+          if (!std::getline(row, run, ',') || !std::getline(row, frame, ',') ||
+              !std::getline(row, pairs, ',') ||
+              !std::getline(row, accuracy, ',')) {
+            continue;
+          }
+          if (run != "0") continue;
+          frames.emplace_back(
+              std::stod(accuracy), std::stol(frame), std::stol(pairs));
+        }
+      }
+      std::sort(frames.begin(), frames.end());
+      fs::path page;
+      if (fs::is_directory(dir / "view")) {
+        for (const auto& entry : fs::directory_iterator(dir / "view")) {
+          if (entry.path().extension() == ".html" &&
+              (page.empty() || entry.path() < page)) {
+            page = entry.path();
+          }
+        }
+      }
+      const auto metrics = ReadMetrics(dir);
+      const auto mean = metrics.find("acc_mean");
+      std::string worst;
+      for (size_t i = 0;
+           i < frames.size() && static_cast<int>(i) < per_evaluation &&
+           std::get<0>(frames[i]) < 1.0;
+           ++i) {
+        const auto& [accuracy, frame, pairs] = frames[i];
+        worst += fmt::format(
+            "{}[{}]({}) {:.1f}% of {}",
+            worst.empty() ? "" : ", ",
+            frame,
+            page.empty() ? link(dir / "eval.md")
+                         : fmt::format("{}#frame={}", link(page), frame),
+            100.0 * accuracy,
+            pairs);
+      }
+      if (worst.empty()) {
+        worst = frames.empty() ? "no per_frame.csv" : "every frame 100%";
+      }
+      md << fmt::format("| {} | {} | {} | {} | {} ([eval.md]({})) |\n",
+                        m.variant,
+                        m.seed,
+                        test.name,
+                        mean == metrics.end()
+                            ? std::string("-")
+                            : fmt::format("{:.2f}%", 100.0 * mean->second),
+                        worst,
+                        link(dir / "eval.md"));
+      ++rows;
+    }
+  }
+  WriteFileAtomic(path, md.str());
+  return rows;
 }
 
 int WriteTrainingCurvesCsv(const ReproductionPlan& plan, const fs::path& path) {

@@ -132,6 +132,17 @@ double EstimateSecondsLeft(std::vector<double> finished_model_s,
 std::vector<CellResult> CollectResults(const AblationSpec& spec,
                                        const ReproductionPlan& plan);
 
+/// Writes `path` (markdown): per finished evaluation of `plan` (variant,
+/// seed, test), its `per_evaluation` lowest-accuracy frames from the eval
+/// run's per_frame.csv (first output), each linked into the `soma view`
+/// page the evaluation wrote (`<eval run>/view/*.html#frame=N`; its eval.md
+/// when it has none), with links relative to `path`'s directory. Returns
+/// the evaluations listed.
+int WriteWorstFramesMarkdown(const AblationSpec& spec,
+                             const ReproductionPlan& plan,
+                             int per_evaluation,
+                             const std::filesystem::path& path);
+
 /// Where the finished trainings of `plan` ran, from the provenance of each
 /// training run (`<run>/.hydra/hydra.yaml`: host and CPU): one entry per
 /// machine, "vm, Intel(R) Xeon(R) Processor: 8 models", most models first. A

@@ -44,6 +44,7 @@
 #include "framework/solve/solve_output.h"
 #include "framework/tasks/components.h"
 #include "framework/tasks/task.h"
+#include "framework/tasks/view_page.h"
 
 #include <fmt/format.h>
 #include <fmt/ranges.h>
@@ -53,6 +54,7 @@
 #include <filesystem>
 #include <set>
 #include <sstream>
+#include <tuple>
 
 namespace soma {
 namespace {
@@ -161,6 +163,12 @@ struct EvalOptions {
   /// them), "ghost" scores them as null (a subset-layout model on a
   /// superset capture, SOMA Table 4).
   std::string unknown_gt_labels = "wrong";
+  /// Per output, a `soma view` page against the ground truth
+  /// (view/<stem>.html) and eval.md's links to its `worst_frames` worst
+  /// frames; view_max_page_mb as soma view's max_page_mb.
+  bool view = true;
+  int worst_frames = 5;
+  double view_max_page_mb = 30.0;
   std::string body_fit_gt;  // empty: no body-fit metrics
   std::string body_fit_rec;
   BodyMetricsOptions body;
@@ -179,21 +187,24 @@ class EvalTask : public Task {
 
   void Run(const ConfigNode& cfg, RunContext& ctx) override {
     std::string md;
-    if (options_.labelling()) md += EvaluateLabelling(ctx);
+    if (options_.labelling()) md += EvaluateLabelling(cfg, ctx);
     if (options_.body_fits()) md += EvaluateBodyFits(cfg, ctx);
     WriteFileAtomic(ctx.output_dir / "eval.md", md);
   }
 
  private:
   /// Scores the labelled outputs; returns the eval.md section.
-  std::string EvaluateLabelling(RunContext& ctx) const {
+  std::string EvaluateLabelling(const ConfigNode& cfg, RunContext& ctx) const {
     const ScoredSequence gt = ReadGroundTruth(options_.gt);
     const MatchTolerance tolerance{options_.tolerance};
     std::ostringstream per_frame;
     per_frame << "run,frame,pairs,accuracy,precision,recall,f1\n";
     std::vector<LabelPair> all_pairs;
     std::vector<LabelingEvaluator::Result> results;
+    std::string worst_md;
     for (size_t r = 0; r < options_.rec.size(); ++r) {
+      // (accuracy, frame, pairs) of the frames with pairs.
+      std::vector<std::tuple<double, size_t, int64_t>> frame_accuracy;
       const ScoredSequence rec = ReadC3dSequence(options_.rec[r]);
       if (rec.frames.size() != gt.frames.size()) {
         throw IoError(
@@ -226,6 +237,7 @@ class EvalTask : public Task {
         }
         if (!pairs.empty()) {
           const LabelingMetrics m = ComputeLabelingMetrics(pairs);
+          frame_accuracy.emplace_back(m.accuracy, t, m.num_pairs);
           per_frame << fmt::format("{},{},{},{:.6f},{:.6f},{:.6f},{:.6f}\n",
                                    r,
                                    t,
@@ -259,6 +271,9 @@ class EvalTask : public Task {
                          static_cast<double>(unknown.size()));
       }
       results.push_back(evaluator.Finish());
+      if (options_.view) {
+        worst_md += WorstFramesSection(cfg, r, frame_accuracy, ctx);
+      }
       all_pairs.insert(all_pairs.end(),
                        evaluator.pooled_pairs().begin(),
                        evaluator.pooled_pairs().end());
@@ -269,7 +284,77 @@ class EvalTask : public Task {
     const ConfusionMatrix confusion = ComputeConfusionMatrix(all_pairs);
     WriteConfusionMatrixCsv(confusion, ctx.output_dir / "confusion.csv");
     WriteConfusionMatrixPng(confusion, ctx.output_dir / "confusion.png");
-    return Report(results, pooled, ctx);
+    std::string md = Report(results, pooled, ctx);
+    if (!worst_md.empty()) {
+      md += fmt::format(
+          "## Worst frames\n\nPer output, the {} frames with the lowest "
+          "accuracy (ties: the earlier frame). The links open the output's "
+          "`soma view` page against this ground truth at that frame (red: "
+          "wrong labels, orange: ghosts labelled as markers, rings: missed "
+          "markers).\n\n",
+          options_.worst_frames);
+      md += worst_md + "\n";
+    }
+    return md;
+  }
+
+  /// Writes output r's `soma view` page (view/<stem>.html, view/<r>_<stem>
+  /// .html with several outputs) and returns eval.md's lines for its worst
+  /// frames.
+  std::string WorstFramesSection(
+      const ConfigNode& cfg,
+      size_t r,
+      std::vector<std::tuple<double, size_t, int64_t>> frame_accuracy,
+      RunContext& ctx) const {
+    const std::string stem = fs::path(options_.rec[r]).stem().string();
+    const std::string name =
+        options_.rec.size() > 1 ? fmt::format("{}_{}", r, stem) : stem;
+    const fs::path relative = fs::path("view") / (name + ".html");
+    ViewPageSettings settings;
+    settings.inputs.capture = options_.rec[r];
+    settings.inputs.truth = options_.gt;
+    settings.inputs.sidecar = FindSidecar(options_.rec[r]);
+    settings.inputs.tolerance = options_.tolerance;
+    settings.max_page_mb = options_.view_max_page_mb;
+    // The page is an aid: when it cannot be written (e.g. a layout the
+    // sticks cannot be built from), the evaluation still succeeds and the
+    // worst frames are listed without links.
+    bool have_page = true;
+    try {
+      const ViewPageResult page =
+          WriteViewPage(cfg, settings, ctx.output_dir / relative, ctx);
+      SOMA_LOG(INFO,
+               "eval: the soma view page of {} is {} ({:.1f} MB)",
+               options_.rec[r],
+               page.path.string(),
+               page.bytes / 1e6);
+    } catch (const Error& e) {
+      have_page = false;
+      SOMA_LOG(WARNING,
+               "eval: no soma view page for {}: {}",
+               options_.rec[r],
+               e.what());
+    }
+    std::sort(frame_accuracy.begin(), frame_accuracy.end());
+    std::string md =
+        have_page ? fmt::format("`{}` ([page]({})):", stem, relative.string())
+                  : fmt::format("`{}` (no page, see the log):", stem);
+    int listed = 0;
+    for (const auto& [accuracy, t, pairs] : frame_accuracy) {
+      if (listed == options_.worst_frames || accuracy >= 1.0) break;
+      const std::string frame =
+          have_page
+              ? fmt::format("[frame {}]({}#frame={})", t, relative.string(), t)
+              : fmt::format("frame {}", t);
+      md += fmt::format("{} {} {:.1f}% of {}",
+                        listed == 0 ? "" : ";",
+                        frame,
+                        100.0 * accuracy,
+                        pairs);
+      ++listed;
+    }
+    if (listed == 0) md += " every frame 100%";
+    return md + ".\n\n";
   }
 
   /// Compares the two body fits; returns the eval.md section.
@@ -445,6 +530,11 @@ void RegisterEvalTask(Registry<Task>& registry) {
                      options.unknown_gt_labels == "ghost",
                  "wrong or ghost");
     reader.Read("pck_thresholds_mm", &options.body.pck_thresholds_mm);
+    reader.Read("view", &options.view);
+    reader.Read("worst_frames", &options.worst_frames);
+    reader.Read("view_max_page_mb", &options.view_max_page_mb);
+    reader.Check("worst_frames", options.worst_frames >= 0, ">= 0");
+    reader.Check("view_max_page_mb", options.view_max_page_mb > 0, "> 0");
     reader.Check("rec",
                  options.labelling() == !options.rec.empty(),
                  "at least one labelled output when gt is given, none "

@@ -105,6 +105,8 @@ class ReproduceTask : public Task {
         WriteClaimsCsv(spec, cells, results / (spec.name + "_claims.csv"));
       }
       WriteTrainingCurvesCsv(plan, results / (spec.name + "_curves.csv"));
+      WriteWorstFramesMarkdown(
+          spec, plan, 5, results / (spec.name + "_worst_frames.md"));
       return now;
     };
     const ReproductionRun run =

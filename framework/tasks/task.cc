@@ -23,6 +23,7 @@ void RegisterSolveTask(Registry<Task>& registry);
 void RegisterSynthTask(Registry<Task>& registry);
 void RegisterTrainTask(Registry<Task>& registry);
 void RegisterTrimTask(Registry<Task>& registry);
+void RegisterViewTask(Registry<Task>& registry);
 
 void RegisterTasks() {
   Registry<Task>& registry = GetRegistry<Task>();
@@ -43,6 +44,7 @@ void RegisterTasks() {
   RegisterSynthTask(registry);
   RegisterTrainTask(registry);
   RegisterTrimTask(registry);
+  RegisterViewTask(registry);
   RegisterConfigGroup<Task>("task");
 }
 

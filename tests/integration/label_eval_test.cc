@@ -139,6 +139,17 @@ TEST(EvalTask, PerfectAndSwappedLabelsOfACorruptedTake) {
   EXPECT_GT(m.at("acc_std_over_runs").AsDouble(), 0.0);
   const std::string md = ReadFile(dir / "out/eval.md");
   EXPECT_THAT(md, HasSubstr("mean ± population std over outputs"));
+  // Each output's soma view page, and eval.md's links to its worst frames:
+  // none for the perfect labels, frames with the swapped pair otherwise.
+  EXPECT_TRUE(fs::exists(dir / "out/view/0_perfect.html"));
+  EXPECT_TRUE(fs::exists(dir / "out/view/1_swapped.html"));
+  EXPECT_THAT(md, HasSubstr("## Worst frames"));
+  EXPECT_THAT(md,
+              HasSubstr("`perfect` ([page](view/0_perfect.html)): every "
+                        "frame 100%."));
+  EXPECT_THAT(md,
+              HasSubstr("`swapped` ([page](view/1_swapped.html)): [frame "));
+  EXPECT_THAT(md, HasSubstr("(view/1_swapped.html#frame="));
   const std::string confusion = ReadFile(dir / "out/confusion.csv");
   EXPECT_THAT(confusion, HasSubstr("nan"));
 }

@@ -9,6 +9,7 @@
 #include "framework/core/file.h"
 #include "framework/testing/testing.h"
 
+#include <fmt/format.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
@@ -245,6 +246,44 @@ claims: []
   // evaluations of earlier tables stay valid).
   EXPECT_EQ(PlanReproduction(Spec(), options_).corrupt[0].run_dir.filename(),
             "take_OC_05_G_03_BT_00_seed0");
+}
+
+TEST_F(ReproductionTest, WorstFramesLinkIntoEachEvaluationsViewPage) {
+  const AblationSpec spec = Spec();
+  const ReproductionPlan plan = PlanReproduction(spec, options_);
+  ASSERT_EQ(RunReproduction(plan, options_, false).models_done, 4);
+  // base seed 0: test a has a page and three imperfect frames (and a second
+  // output, run 1, that is not listed); test b is perfect, without a page.
+  const fs::path a = plan.models[0].eval_dirs.at("a");
+  WriteFileAtomic(a / "per_frame.csv",
+                  "run,frame,pairs,accuracy,precision,recall,f1\n"
+                  "0,0,4,1.000000,1,1,1\n"
+                  "0,3,4,0.750000,1,1,1\n"
+                  "0,7,4,0.500000,1,1,1\n"
+                  "0,9,4,0.750000,1,1,1\n"
+                  "1,5,4,0.000000,1,1,1\n");
+  CreateDirectories(a / "view");
+  WriteFileAtomic(a / "view/take_labeled.html", "<html></html>");
+  WriteFileAtomic(plan.models[0].eval_dirs.at("b") / "per_frame.csv",
+                  "run,frame,pairs,accuracy,precision,recall,f1\n"
+                  "0,0,4,1.000000,1,1,1\n");
+  const fs::path md_path = dir_ / "results" / "demo_worst_frames.md";
+  CreateDirectories(md_path.parent_path());
+  EXPECT_EQ(WriteWorstFramesMarkdown(spec, plan, 2, md_path), 4 * 2);
+  const std::string md = ReadFile(md_path);
+  const std::string page =
+      fs::relative(a / "view/take_labeled.html", md_path.parent_path())
+          .generic_string();
+  EXPECT_EQ(page.rfind("../root/", 0), 0u) << page;  // relative to results/
+  // The two worst of run 0, worst first; ties by frame.
+  EXPECT_THAT(
+      md,
+      HasSubstr(fmt::format("| base | 0 | a | 90.00% | [7]({0}#frame=7) "
+                            "50.0% of 4, [3]({0}#frame=3) 75.0% of 4 (",
+                            page)));
+  EXPECT_THAT(md, HasSubstr("| base | 0 | b | 90.00% | every frame 100% ("));
+  EXPECT_THAT(md, HasSubstr("| lsm | 0 | a | 80.00% | no per_frame.csv ("));
+  EXPECT_THAT(md, ::testing::Not(HasSubstr("#frame=5")));
 }
 
 TEST_F(ReproductionTest, OnlySelectedVariantsRunTheOthersStayPending) {
