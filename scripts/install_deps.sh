@@ -13,6 +13,8 @@ PACKAGES=(
   libopenblas-dev libopenblas0-openmp zlib1g-dev
   python3 python3-h5py python3-numpy
   python3-nbconvert python3-nbformat python3-ipykernel python3-pandas python3-matplotlib
+  # A one-node SLURM for the SLURM launcher's test (tests/integration/slurm_test.sh).
+  slurm-wlm munge
 )
 
 missing=()

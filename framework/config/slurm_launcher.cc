@@ -501,7 +501,13 @@ SlurmSubmission SubmitSlurmArray(const SlurmLauncherOptions& options,
                       dir.string(),
                       ec.message()));
     }
-    fs::remove(dir / kExitStatusFile, ec);
+    // A previous attempt's exit status must not stand for this one (the
+    // wrapper also removes it when the task starts); put back if sbatch fails.
+    if (fs::exists(dir / kExitStatusFile)) {
+      fs::rename(dir / kExitStatusFile,
+                 dir / (std::string(kExitStatusFile) + ".previous"),
+                 ec);
+    }
   }
   const std::string stamp = IsoNow();
   std::string safe_stamp = stamp;
@@ -515,10 +521,18 @@ SlurmSubmission SubmitSlurmArray(const SlurmLauncherOptions& options,
 
   const CommandResult r = RunCommand({"sbatch", "--parsable", script.string()});
   const std::string id = Trim(r.out.substr(0, r.out.find(';')));
-  if (r.exit_code != 0 || id.empty() ||
-      !std::all_of(id.begin(), id.end(), [](char c) {
-        return std::isdigit(static_cast<unsigned char>(c));
-      })) {
+  const bool submitted = r.exit_code == 0 && !id.empty() &&
+                         std::all_of(id.begin(), id.end(), [](char c) {
+                           return std::isdigit(static_cast<unsigned char>(c));
+                         });
+  if (!submitted) {
+    for (const SlurmArrayTask& t : spec.tasks) {
+      const fs::path previous =
+          t.dir / (std::string(kExitStatusFile) + ".previous");
+      std::error_code ec;
+      if (fs::exists(previous))
+        fs::rename(previous, t.dir / kExitStatusFile, ec);
+    }
     throw Error(fmt::format(
         "sbatch refused the job array of jobs [{}] (script {}): {}; nothing "
         "was submitted",
