@@ -84,7 +84,8 @@ SlurmctldHost=localhost
 SlurmctldPort=$ctld_port
 SlurmdPort=$slurmd_port
 AuthType=auth/munge
-AuthInfo=socket=$socket
+# cred_expire: a requeued job waits cred_expire+1 s (default 120) to start again.
+AuthInfo=socket=$socket,cred_expire=10
 CredType=cred/munge
 SlurmUser=root
 SlurmdUser=root

@@ -349,6 +349,7 @@ SlurmLauncherOptions DecodeSlurmLauncherOptions(const ConfigNode& launcher) {
   read_optional_string("qos", &options.qos);
   read_optional_string("constraint", &options.constraint);
   reader.Read("signal_delay_s", &options.signal_delay_s);
+  reader.Read("requeue", &options.requeue);
   reader.Read("setup", &options.setup);
   if (const ConfigNode* extra = reader.Child("additional_parameters");
       extra && !extra->IsNull()) {
@@ -426,8 +427,9 @@ std::string MakeSbatchScript(const SlurmLauncherOptions& options,
   if (!options.qos.empty()) sbatch("--qos=" + options.qos);
   if (!options.constraint.empty()) sbatch("--constraint=" + options.constraint);
   if (options.signal_delay_s > 0) {
-    sbatch(fmt::format("--signal=B:TERM@{}", options.signal_delay_s));
+    sbatch(fmt::format("--signal=B:USR1@{}", options.signal_delay_s));
   }
+  if (options.requeue) sbatch("--requeue");
   for (const auto& [key, value] : options.additional_parameters) {
     std::string flag = key;
     std::replace(flag.begin(), flag.end(), '_', '-');
@@ -458,16 +460,32 @@ std::string MakeSbatchScript(const SlurmLauncherOptions& options,
   s += ShellQuote(spec.executable);
   for (const std::string& a : spec.base_args) s += " " + ShellQuote(a);
   s += " \"${overrides[@]}\" &\n";
-  // SLURM's --signal=B:TERM (preemption, time limit) and scancel reach this
-  // shell; pass them on to soma and wait for its own exit status.
+  // scancel's SIGTERM reaches this shell: pass it on to soma and wait for its
+  // own exit status. SIGUSR1 (--signal=B:USR1, or scancel --signal=USR1 -b)
+  // stops soma and, with requeue, puts the task back in the queue; its last
+  // checkpoint stays valid (atomic writes) and the next start resumes it.
+  // (Requeueing on SIGTERM would turn every scancel into a requeue.)
   s += "child=$!\n"
+       "requeue=0\n"
        "trap 'kill -TERM \"$child\" 2>/dev/null' TERM INT\n"
+       "trap 'requeue=1; kill -TERM \"$child\" 2>/dev/null' USR1\n"
        "wait \"$child\"\n"
        "rc=$?\n"
        "while kill -0 \"$child\" 2>/dev/null; do\n"
        "  wait \"$child\"\n"
        "  rc=$?\n"
        "done\n";
+  if (options.requeue) {
+    s += "if ((requeue)); then\n"
+         "  if scontrol requeue \"$SLURM_JOB_ID\"; then\n"
+         "    echo \"soma: SIGUSR1: stopped job $SOMA_SWEEP_JOB (status $rc),"
+         " requeued SLURM job $SLURM_JOB_ID; it resumes from its checkpoint\""
+         " >&2\n"
+         "    exit 0\n"
+         "  fi\n"
+         "  echo \"soma: SIGUSR1: scontrol requeue $SLURM_JOB_ID failed\" >&2\n"
+         "fi\n";
+  }
   s += "printf '%s\\n' \"$rc\" > \"$job_dir/" + std::string(kExitStatusFile) +
        ".tmp\" && mv -f \"$job_dir/" + std::string(kExitStatusFile) +
        ".tmp\" \"$job_dir/" + std::string(kExitStatusFile) + "\"\n";

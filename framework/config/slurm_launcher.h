@@ -25,16 +25,20 @@ struct SlurmLauncherOptions {
   bool wait = true;  // false: submit and return
   double poll_interval_s =
       10;  // wait=true: seconds between ledger/squeue looks
-  int array_parallelism = 256;     // --array=...%N
-  std::string partition;           // --partition (empty: cluster default)
-  int cpus_per_task = 1;           // --cpus-per-task
-  std::optional<double> mem_gb;    // --mem=<N>G
-  int timeout_min = 60;            // --time, minutes
-  std::string gres;                // --gres
-  std::string account;             // --account
-  std::string qos;                 // --qos
-  std::string constraint;          // --constraint
-  int signal_delay_s = 120;        // --signal=B:TERM@N (0: none)
+  int array_parallelism = 256;   // --array=...%N
+  std::string partition;         // --partition (empty: cluster default)
+  int cpus_per_task = 1;         // --cpus-per-task
+  std::optional<double> mem_gb;  // --mem=<N>G
+  int timeout_min = 60;          // --time, minutes
+  std::string gres;              // --gres
+  std::string account;           // --account
+  std::string qos;               // --qos
+  std::string constraint;        // --constraint
+  int signal_delay_s = 120;      // --signal=B:USR1@N (0: none)
+  /// On SIGUSR1 (the --signal above, or `scancel --signal=USR1 -b` to
+  /// preempt): stop soma and `scontrol requeue` the task (#SBATCH --requeue),
+  /// which then resumes from its checkpoint. SIGTERM (scancel) only stops.
+  bool requeue = true;
   std::vector<std::string> setup;  // shell lines before soma
   /// Extra `#SBATCH --key=value` lines, in config order.
   std::vector<std::pair<std::string, std::string>> additional_parameters;
@@ -76,8 +80,9 @@ std::string ShellQuote(std::string_view text);
 
 /// The sbatch script of the job array: #SBATCH lines from the options, the
 /// setup lines, a `case` from SLURM_ARRAY_TASK_ID to the job's directory and
-/// command, and the wrapper that forwards SIGTERM to soma and writes the exit
-/// status to `<job dir>/slurm_exit_status`. Pure; throws nothing.
+/// command, and the wrapper that forwards SIGTERM to soma, requeues the task
+/// on SIGUSR1 (with `requeue`) and otherwise writes soma's exit status to
+/// `<job dir>/slurm_exit_status`. Pure; throws nothing.
 std::string MakeSbatchScript(const SlurmLauncherOptions& options,
                              const SbatchScriptSpec& spec);
 

@@ -12,7 +12,10 @@
 #   4. wait=false returns at once printing the sweep dir; `soma sweep status`
 #      shows running/pending jobs; `soma sweep cancel` scancels them and they
 #      are failed in the ledger;
-#   5. wait=true interrupted with SIGINT cancels its array.
+#   5. wait=true interrupted with SIGINT cancels its array;
+#   6. preemption: a checkpointing job signalled with `scancel --signal=USR1
+#      -b` is requeued, resumes from its checkpoint and ends with the metrics
+#      of an uninterrupted run.
 #   slurm_test.sh <soma executable> <source dir>
 # Exit 77 (CTest: skipped) when not root or SLURM/munge are not installed.
 set -euo pipefail
@@ -174,6 +177,7 @@ step "4. sweep cancel: $(tail -1 status.txt)"
 int_args=(-cn demo -m 'seed=0,1' task.steps=600 task.step_ms=50
           hydra/launcher=slurm hydra.launcher.poll_interval_s=0.5
           hydra.sweep.dir="$work/run/interrupted")
+: >int.txt
 "$soma" "${int_args[@]}" >int.txt 2>&1 &
 pid=$!
 for _ in $(seq 100); do
@@ -196,5 +200,50 @@ done
 grep -c "status: failed" "$work/run/interrupted/jobs.yaml" | grep -q 2 ||
   fail "the interrupted jobs are not failed in the ledger"
 step "5. SIGINT cancelled the array (exit $rc)"
+
+# --- 6. preemption: SIGUSR1 -> requeue -> resume from the checkpoint ---------
+# A demo job that checkpoints every step (task.checkpoint=true) stands in for
+# a training (which checkpoints every epoch): preempted with
+# `scancel --signal=USR1 -b`, it is requeued, resumes and ends with the same
+# metrics as an uninterrupted run.
+pre=$work/run/preempt
+pre_task=(seed=0 task.steps=40 task.step_ms=100 task.checkpoint=true)
+"$soma" -cn demo -m "${pre_task[@]}" hydra/launcher=slurm hydra.launcher.wait=false \
+  hydra.sweep.dir="$pre" >/dev/null 2>pre_submit.txt ||
+  { cat pre_submit.txt; fail "submitting the preemption job"; }
+array=$(sed -n "s/.*array_job_id: *'\{0,1\}\([0-9]*\).*/\1/p" "$pre/.slurm/submissions.yaml" | tail -1)
+[[ -n $array ]] || fail "no array job id for the preemption job"
+done_steps() { head -1 "$pre/0/demo_checkpoint.txt" 2>/dev/null | cut -d' ' -f1; }
+for _ in $(seq 150); do
+  (( $(done_steps || echo 0) >= 5 )) 2>/dev/null && break
+  sleep 0.2
+done
+(( $(done_steps) >= 5 )) || fail "the preemption job did not reach step 5"
+scancel --signal=USR1 -b "${array}_0"
+for _ in $(seq 100); do
+  squeue -h -r -o '%F_%K %T %r' | grep -q "^${array}_0 PENDING" && break
+  sleep 0.2
+done
+squeue -h -r -o '%F_%K %T %r' | grep -q "^${array}_0 PENDING" ||
+  fail "the preempted job was not requeued: $(squeue -h -r -o '%F_%K %T %r')"
+stopped_at=$(done_steps)
+# SLURM holds a requeued job back for cred_expire+1 s (11 s here).
+for _ in $(seq 300); do
+  grep -q "^0,done" "$pre/jobs.csv" 2>/dev/null && break
+  sleep 0.2
+done
+[[ $(cut -d, -f1-3 "$pre/jobs.csv" | tail -1) == "0,done,2" ]] ||
+  fail "the requeued job: $(cut -d, -f1-3 "$pre/jobs.csv" | tail -1), not 0,done,2"
+grep -q "demo: resumed from step" "$pre/0/soma.log" ||
+  fail "the requeued job did not resume from its checkpoint"
+grep -q "requeued SLURM job" "$pre"/0/slurm-*_0.err || fail "no requeue message in SLURM's stderr"
+grep -q "restart_count: '1'" "$pre/0/.hydra/hydra.yaml" ||
+  fail "the requeued job's provenance has no restart count 1"
+"$soma" -cn demo "${pre_task[@]}" task.step_ms=0 hydra.run.dir="$work/run/straight" \
+  >straight.txt 2>&1 || { cat straight.txt; fail "the uninterrupted run"; }
+cmp -s "$pre/0/metrics.yaml" "$work/run/straight/metrics.yaml" &&
+  cmp -s "$pre/0/metrics.csv" "$work/run/straight/metrics.csv" ||
+  fail "the preempted run's metrics differ from an uninterrupted run's"
+step "6. preempted at step $stopped_at, requeued, resumed: $(grep "resumed" "$pre/0/soma.log" | sed 's/.* - //'); metrics identical to an uninterrupted run ($(tr '\n' ' ' < "$pre/0/metrics.yaml"))"
 
 echo "slurm_test: ok (${SECONDS}s)"
