@@ -674,10 +674,11 @@ int RunMultirun(const CliArgs& cli,
   WriteFileAtomic(sweep_dir / "multirun.yaml", DumpYaml(sweep.root));
   Ledger ledger = Ledger::Load(sweep_dir);
   SOMA_LOG(INFO,
-           "Launching {} jobs in {} ({} at a time)",
+           "Launching {} jobs in {} ({})",
            jobs.size(),
            sweep_dir.string(),
-           n_jobs);
+           launcher == "slurm" ? std::string("as a SLURM job array")
+                               : fmt::format("{} at a time", n_jobs));
 
   const GitState git = QueryGit();
   std::vector<const PlannedJob*> todo;

@@ -615,9 +615,16 @@ std::vector<SweepJobState> QuerySweepState(const fs::path& sweep_dir,
         const std::string err = SlurmErrFile(entry.dir);
         st.state = "failed";
         st.detail =
-            rc ? fmt::format("the job exited with status {}{}",
-                             *rc,
-                             *rc == 0 ? " without recording its end" : "")
+            rc ? fmt::format(
+                     "the job exited with status {}{}{}",
+                     *rc,
+                     *rc == 0 ? " without recording its end"
+                     : *rc > 128
+                         ? fmt::format(" (signal {}: cancelled, timed out or "
+                                       "killed)",
+                                       *rc - 128)
+                         : "",
+                     err.empty() ? "" : "; see " + err)
                : fmt::format(
                      "the SLURM task ended without an exit status (cancelled, "
                      "timed out or killed){}",

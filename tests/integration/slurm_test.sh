@@ -172,6 +172,28 @@ set -e
   grep -q "cancelled (soma sweep cancel)" status.txt ||
   { cat status.txt; fail "sweep status after cancel (exit $rc)"; }
 step "4. sweep cancel: $(tail -1 status.txt)"
+# A job killed behind soma's back (plain scancel): its wrapper's exit status
+# makes it failed although the ledger still said running.
+killed=$work/run/killed
+"$soma" -cn demo -m seed=0 task.steps=600 task.step_ms=50 hydra/launcher=slurm \
+  hydra.launcher.wait=false hydra.sweep.dir="$killed" >/dev/null 2>kill_submit.txt ||
+  { cat kill_submit.txt; fail "submitting the job to kill"; }
+for _ in $(seq 100); do
+  grep -q "status: running" "$killed/jobs.yaml" && break
+  sleep 0.2
+done
+grep -q "status: running" "$killed/jobs.yaml" || fail "the job to kill never ran"
+scancel "$(sed -n "s/.*array_job_id: *'\{0,1\}\([0-9]*\).*/\1/p" "$killed/.slurm/submissions.yaml")"
+for _ in $(seq 100); do
+  [[ -z $(squeue -h) ]] && break
+  sleep 0.2
+done
+set +e
+"$soma" sweep status "$killed" >status.txt
+set -e
+grep -q "the job exited with status 143" status.txt && grep -q "0 done, 0 running, 0 pending, 1 failed" status.txt ||
+  { cat status.txt; fail "a job killed by scancel is not failed with its exit status"; }
+step "4. plain scancel: $(grep 'exited' status.txt | sed 's/^ *//')"
 
 # --- 5. wait=true interrupted with SIGINT cancels the array ------------------
 int_args=(-cn demo -m 'seed=0,1' task.steps=600 task.step_ms=50
