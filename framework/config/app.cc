@@ -538,9 +538,16 @@ std::string LauncherKind(const ConfigNode& root) {
   return kind;
 }
 
-/// The job number an array task of the SLURM launcher runs ($SOMA_SWEEP_JOB),
-/// or nullopt in an ordinary multirun.
-std::optional<int> ArrayTaskJob() {
+/// The job an array task of the SLURM launcher runs.
+struct ArrayTask {
+  int num = 0;         // $SOMA_SWEEP_JOB
+  fs::path sweep_dir;  // $SOMA_SWEEP_DIR
+};
+
+/// The array task this process is (from its environment, which is then
+/// cleared so that processes the job starts are not array tasks), or nullopt
+/// in an ordinary multirun.
+std::optional<ArrayTask> ArrayTaskFromEnv() {
   const char* text = std::getenv(kSweepJobEnv);
   if (text == nullptr || *text == '\0') return std::nullopt;
   char* end = nullptr;
@@ -553,7 +560,10 @@ std::optional<int> ArrayTaskJob() {
         text,
         kSweepDirEnv));
   }
-  return static_cast<int>(num);
+  ArrayTask task{static_cast<int>(num), fs::path(std::getenv(kSweepDirEnv))};
+  ::unsetenv(kSweepJobEnv);
+  ::unsetenv(kSweepDirEnv);
+  return task;
 }
 
 /// An array task of the SLURM launcher: runs its one job in this process and
@@ -623,14 +633,14 @@ int RunMultirun(const CliArgs& cli,
   ConfigRepository repo(sweep.search_path);
   const std::vector<std::vector<std::string>> job_overrides =
       ExpandSweep(sweep.root, overrides, repo);
-  const std::optional<int> array_task = ArrayTaskJob();
+  const std::optional<ArrayTask> array_task = ArrayTaskFromEnv();
   if (array_task && job_overrides.size() != 1) {
     throw ConfigError(fmt::format(
         "An array task must run exactly one job; its overrides make {}",
         job_overrides.size()));
   }
   const fs::path sweep_dir =
-      array_task ? fs::path(std::getenv(kSweepDirEnv))
+      array_task ? array_task->sweep_dir
                  : fs::path(ResolveToString(sweep.root, "hydra.sweep.dir"));
   int n_jobs = 1;
   if (const ConfigNode* n = sweep.root.FindPath("hydra.launcher.n_jobs");
@@ -642,7 +652,7 @@ int RunMultirun(const CliArgs& cli,
   std::vector<PlannedJob> jobs;
   for (size_t i = 0; i < job_overrides.size(); ++i) {
     PlannedJob job;
-    job.num = array_task ? *array_task : static_cast<int>(i);
+    job.num = array_task ? array_task->num : static_cast<int>(i);
     job.overrides = job_overrides[i];
     try {
       job.root = Compose(MakeRequest(cli,
@@ -719,6 +729,7 @@ int RunMultirun(const CliArgs& cli,
       const SlurmLauncherOptions options = DecodeSlurmLauncherOptions(
           jobs.front().resolved.at("hydra").at("launcher"));
       SbatchScriptSpec spec;
+      spec.job_name = "soma-" + fs::absolute(sweep_dir).filename().string();
       spec.sweep_dir = fs::absolute(sweep_dir).lexically_normal();
       spec.workdir = fs::current_path();
       spec.executable = fs::read_symlink("/proc/self/exe").string();
