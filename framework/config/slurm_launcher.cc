@@ -469,12 +469,14 @@ std::string MakeSbatchScript(const SlurmLauncherOptions& options,
        "requeue=0\n"
        "trap 'kill -TERM \"$child\" 2>/dev/null' TERM INT\n"
        "trap 'requeue=1; kill -TERM \"$child\" 2>/dev/null' USR1\n"
+       // A trapped signal interrupts `wait` (status 128+n); wait until soma
+       // has ended, then once more for its own status (bash keeps it).
        "wait \"$child\"\n"
-       "rc=$?\n"
        "while kill -0 \"$child\" 2>/dev/null; do\n"
        "  wait \"$child\"\n"
-       "  rc=$?\n"
-       "done\n";
+       "done\n"
+       "wait \"$child\"\n"
+       "rc=$?\n";
   if (options.requeue) {
     s += "if ((requeue)); then\n"
          "  if scontrol requeue \"$SLURM_JOB_ID\"; then\n"

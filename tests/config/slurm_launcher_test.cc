@@ -210,6 +210,52 @@ TEST(SlurmLauncher, WrapperRecordsTheJobsOwnExitStatus) {
   EXPECT_TRUE(Contains(ReadFile(sweep / "out.txt"), "no job for array task"));
 }
 
+/// Runs the script as array task 1 with a fake `scontrol` on PATH, sends
+/// the wrapper SIGUSR1 once the stand-in soma runs; returns bash's status.
+int PreemptTask(const fs::path& sweep, bool requeue) {
+  testing::WriteTextFile(
+      sweep, "bin/scontrol", "#!/bin/bash\necho \"$*\" > \"$SCONTROL_LOG\"\n");
+  testing::WriteTextFile(sweep,
+                         "sleeping_soma.sh",
+                         "#!/bin/bash\ntouch \"$SOMA_SWEEP_DIR/started\"\n"
+                         "exec sleep 30\n");
+  for (const char* exe : {"bin/scontrol", "sleeping_soma.sh"}) {
+    fs::permissions(sweep / exe, fs::perms::owner_all);
+  }
+  SlurmLauncherOptions options;
+  options.requeue = requeue;
+  WriteFileAtomic(
+      sweep / "array.sbatch",
+      MakeSbatchScript(options,
+                       Spec(sweep, (sweep / "sleeping_soma.sh").string())));
+  fs::remove(sweep / "started");
+  const std::string q = ShellQuote(sweep.string());
+  const std::string command =
+      "cd " + q + " && (SLURM_ARRAY_TASK_ID=1 SLURM_JOB_ID=77 " +
+      "SCONTROL_LOG=" + q + "/scontrol.log PATH=" + q +
+      "/bin:$PATH bash array.sbatch >out.txt 2>&1 & p=$!; " +
+      "for i in $(seq 100); do [ -f started ] && break; sleep 0.1; done; " +
+      "sleep 0.3; kill -USR1 $p; wait $p; echo $? > rc.txt)";
+  if (std::system(command.c_str()) != 0) return -1;
+  return std::stoi(ReadFile(sweep / "rc.txt"));
+}
+
+TEST(SlurmLauncher, WrapperRequeuesOnSigusr1) {
+  const fs::path sweep = testing::CreateTestDir();
+  fs::create_directories(sweep / "1");
+  EXPECT_EQ(PreemptTask(sweep, /*requeue=*/true), 0);
+  EXPECT_EQ(ReadFile(sweep / "scontrol.log"), "requeue 77\n");
+  EXPECT_FALSE(fs::exists(sweep / "1" / kExitStatusFile));
+  EXPECT_TRUE(Contains(ReadFile(sweep / "out.txt"), "requeued SLURM job 77"))
+      << ReadFile(sweep / "out.txt");
+
+  // Without requeue the job just ends, stopped by SIGTERM (128 + 15).
+  fs::remove(sweep / "scontrol.log");
+  EXPECT_EQ(PreemptTask(sweep, /*requeue=*/false), 143);
+  EXPECT_FALSE(fs::exists(sweep / "scontrol.log"));
+  EXPECT_EQ(ReadFile(sweep / "1" / kExitStatusFile), "143\n");
+}
+
 TEST(SlurmLauncher, MissingSbatchSubmitsNothing) {
   const fs::path sweep = testing::CreateTestDir();
   const char* old_path = std::getenv("PATH");
