@@ -622,6 +622,69 @@ std::vector<std::string> ArrayTaskArgs(const CliArgs& cli) {
   return args;
 }
 
+/// The SLURM launcher: submits `todo` as one job array and marks it pending
+/// in the ledger; with wait=false returns the exit code at once, else waits
+/// for the array (SIGINT cancels it), lists the failures with their logs and
+/// returns nullopt for the usual summary.
+std::optional<int> LaunchOnSlurm(const CliArgs& cli,
+                                 const fs::path& sweep_dir,
+                                 const std::vector<PlannedJob>& jobs,
+                                 const std::vector<const PlannedJob*>& todo) {
+  const ConfigNode& hydra = jobs.front().resolved.at("hydra");
+  const SlurmLauncherOptions options =
+      DecodeSlurmLauncherOptions(hydra.at("launcher"));
+  SbatchScriptSpec spec;
+  spec.sweep_dir = fs::absolute(sweep_dir).lexically_normal();
+  spec.job_name = "soma-" + spec.sweep_dir.filename().string();
+  spec.workdir = fs::current_path();
+  spec.executable = fs::read_symlink("/proc/self/exe").string();
+  spec.base_args = ArrayTaskArgs(cli);
+  for (const PlannedJob* job : todo) {
+    spec.tasks.push_back(
+        {job->num, fs::absolute(job->dir).lexically_normal(), job->overrides});
+  }
+  // Throws with sbatch's message; the ledger is untouched then.
+  const SlurmSubmission submission = SubmitSlurmArray(options, spec);
+  {
+    LedgerLock lock(sweep_dir);
+    Ledger ledger = Ledger::Load(sweep_dir);
+    for (const SlurmArrayTask& t : spec.tasks) {
+      LedgerEntry& entry = ledger.Entry(t.num);
+      entry.overrides = t.overrides;
+      entry.config_hash = jobs[t.num].hash;
+      entry.dir = t.dir.string();
+      entry.status = JobStatus::kPending;
+      entry.error.clear();
+      entry.metrics.clear();
+    }
+    ledger.Save();
+  }
+  SOMA_LOG(INFO,
+           "Submitted SLURM array job {} (jobs {}); script {}",
+           submission.array_job_id,
+           ArrayIndexList(submission.nums),
+           submission.script);
+  if (!options.wait) {
+    std::fputs(fmt::format("{}\n", spec.sweep_dir.string()).c_str(), stdout);
+    SOMA_LOG(INFO,
+             "Not waiting (hydra.launcher.wait=false): soma sweep status {}",
+             spec.sweep_dir.string());
+    return kExitOk;
+  }
+  WaitForSlurmJobs(sweep_dir, submission, options);
+  const std::string log_name = hydra.at("job").at("name").AsString() + ".log";
+  const Ledger ledger = Ledger::Load(sweep_dir);
+  for (const LedgerEntry& entry : ledger.entries()) {
+    if (entry.status == JobStatus::kDone) continue;
+    SOMA_LOG(ERROR,
+             "Job {} {}: log {}",
+             entry.num,
+             ToString(entry.status),
+             (fs::path(entry.dir) / log_name).string());
+  }
+  return std::nullopt;
+}
+
 int RunMultirun(const CliArgs& cli,
                 const std::vector<Override>& overrides,
                 const TaskFn& task) {
@@ -726,59 +789,11 @@ int RunMultirun(const CliArgs& cli,
 
   if (launcher == "slurm") {
     if (!todo.empty()) {
-      const SlurmLauncherOptions options = DecodeSlurmLauncherOptions(
-          jobs.front().resolved.at("hydra").at("launcher"));
-      SbatchScriptSpec spec;
-      spec.job_name = "soma-" + fs::absolute(sweep_dir).filename().string();
-      spec.sweep_dir = fs::absolute(sweep_dir).lexically_normal();
-      spec.workdir = fs::current_path();
-      spec.executable = fs::read_symlink("/proc/self/exe").string();
-      spec.base_args = ArrayTaskArgs(cli);
-      for (const PlannedJob* job : todo) {
-        spec.tasks.push_back({job->num,
-                              fs::absolute(job->dir).lexically_normal(),
-                              job->overrides});
+      if (const std::optional<int> rc =
+              LaunchOnSlurm(cli, sweep_dir, jobs, todo)) {
+        return *rc;
       }
-      // Throws with sbatch's message; the ledger is untouched then.
-      const SlurmSubmission submission = SubmitSlurmArray(options, spec);
-      {
-        LedgerLock lock(sweep_dir);
-        ledger = Ledger::Load(sweep_dir);
-        for (const SlurmArrayTask& t : spec.tasks) {
-          LedgerEntry& entry = ledger.Entry(t.num);
-          entry.overrides = t.overrides;
-          entry.config_hash = jobs[t.num].hash;
-          entry.dir = t.dir.string();
-          entry.status = JobStatus::kPending;
-          entry.error.clear();
-          entry.metrics.clear();
-        }
-        ledger.Save();
-      }
-      SOMA_LOG(INFO,
-               "Submitted SLURM array job {} (jobs {}); script {}",
-               submission.array_job_id,
-               ArrayIndexList(submission.nums),
-               submission.script);
-      if (!options.wait) {
-        std::fputs(fmt::format("{}\n", spec.sweep_dir.string()).c_str(),
-                   stdout);
-        SOMA_LOG(INFO,
-                 "Not waiting (hydra.launcher.wait=false): soma sweep status "
-                 "{}",
-                 spec.sweep_dir.string());
-        return kExitOk;
-      }
-      WaitForSlurmJobs(sweep_dir, submission, options);
       ledger = Ledger::Load(sweep_dir);
-      for (const LedgerEntry& entry : ledger.entries()) {
-        if (entry.status == JobStatus::kDone) continue;
-        SOMA_LOG(ERROR,
-                 "Job {} {}: log {}",
-                 entry.num,
-                 ToString(entry.status),
-                 (fs::path(entry.dir) / "soma.log").string());
-      }
     }
   } else if (n_jobs == 1) {
     for (const PlannedJob* job : todo) {
