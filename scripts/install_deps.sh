@@ -15,6 +15,8 @@ PACKAGES=(
   python3-nbconvert python3-nbformat python3-ipykernel python3-pandas python3-matplotlib
   # The browser test of `soma view` (tests/view/browser_test.py): headless.
   chromium
+  # A one-node SLURM for the SLURM launcher's test (tests/integration/slurm_test.sh).
+  slurm-wlm munge
 )
 
 missing=()

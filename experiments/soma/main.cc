@@ -6,7 +6,9 @@
 //   soma reproduce <name>       a paper table from ablations/<name>.yaml
 //   soma solve <take.c3d>       fit the body to a labelled capture
 //   soma -m a=1,2 b=x,y         a Hydra-style multirun sweep
+//   soma sweep status|cancel D  a SLURM sweep's jobs (hydra/launcher=slurm)
 #include "framework/config/app.h"
+#include "framework/config/slurm_launcher.h"
 #include "framework/core/error.h"
 #include "framework/core/resources.h"
 #include "framework/framework.h"
@@ -22,6 +24,9 @@
 int main(int argc, char** argv) {
   soma::InitFramework();
   std::vector<std::string> args(argv + 1, argv + argc);
+  if (!args.empty() && args.front() == "sweep") {
+    return soma::RunSweepCommand({args.begin() + 1, args.end()});
+  }
   // `soma <command> ...` selects the task config group option <command>.
   if (!args.empty() && soma::GetRegistry<soma::Task>().Has(args.front())) {
     // A command's main input may be given positionally:

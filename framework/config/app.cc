@@ -4,6 +4,7 @@
 #include "framework/config/interpolation.h"
 #include "framework/config/ledger.h"
 #include "framework/config/override.h"
+#include "framework/config/slurm_launcher.h"
 #include "framework/config/sweep.h"
 #include "framework/config/yaml_io.h"
 #include "framework/core/build_info.h"
@@ -233,6 +234,9 @@ ConfigNode ProvenanceNode(
   node.Set("host", ConfigNode::LiteralString(HostName()));
   node.Set("cpu", ConfigNode::LiteralString(CpuModel()));
   node.Set("threads", threads);
+  if (ConfigNode slurm = SlurmProvenance(); !slurm.IsNull()) {
+    node.Set("slurm", std::move(slurm));
+  }
   node.Set("start_time", ConfigNode::LiteralString(start_time));
   if (end) {
     node.Set("end_time", ConfigNode::LiteralString(end->first));
@@ -519,6 +523,168 @@ struct PlannedJob {
   std::string hash;
 };
 
+/// `hydra.launcher.name`: basic (also when absent), local or slurm.
+std::string LauncherKind(const ConfigNode& root) {
+  const ConfigNode* target = root.FindPath("hydra.launcher.name");
+  if (target == nullptr || target->IsNull()) return "basic";
+  const std::string kind =
+      target->IsString() ? target->AsString() : target->text();
+  if (kind != "basic" && kind != "local" && kind != "slurm") {
+    throw ConfigError(fmt::format(
+        "Unknown launcher hydra.launcher.name = {}; available launchers: "
+        "basic, local, slurm (select one with hydra/launcher=<name>)",
+        kind));
+  }
+  return kind;
+}
+
+/// The job an array task of the SLURM launcher runs.
+struct ArrayTask {
+  int num = 0;         // $SOMA_SWEEP_JOB
+  fs::path sweep_dir;  // $SOMA_SWEEP_DIR
+};
+
+/// The array task this process is (from its environment, which is then
+/// cleared so that processes the job starts are not array tasks), or nullopt
+/// in an ordinary multirun.
+std::optional<ArrayTask> ArrayTaskFromEnv() {
+  const char* text = std::getenv(kSweepJobEnv);
+  if (text == nullptr || *text == '\0') return std::nullopt;
+  char* end = nullptr;
+  const long num = std::strtol(text, &end, 10);
+  if (*end != '\0' || num < 0 || std::getenv(kSweepDirEnv) == nullptr) {
+    throw UsageError(fmt::format(
+        "{}='{}' must be a job number and come with {} (set by the SLURM "
+        "launcher's script)",
+        kSweepJobEnv,
+        text,
+        kSweepDirEnv));
+  }
+  ArrayTask task{static_cast<int>(num), fs::path(std::getenv(kSweepDirEnv))};
+  ::unsetenv(kSweepJobEnv);
+  ::unsetenv(kSweepDirEnv);
+  return task;
+}
+
+/// An array task of the SLURM launcher: runs its one job in this process and
+/// records it in the ledger under the ledger lock (other tasks write too).
+int RunArrayTask(const PlannedJob& job,
+                 const fs::path& sweep_dir,
+                 const TaskFn& task) {
+  {
+    LedgerLock lock(sweep_dir);
+    Ledger ledger = Ledger::Load(sweep_dir);
+    LedgerEntry& entry = ledger.Entry(job.num);
+    entry.overrides = job.overrides;
+    entry.config_hash = job.hash;
+    entry.dir = job.dir.string();
+    entry.status = JobStatus::kRunning;
+    entry.error.clear();
+    entry.metrics.clear();
+    ++entry.attempts;
+    ledger.Save();
+  }
+  SOMA_LOG(INFO, "#{} : {}", job.num, fmt::join(job.overrides, " "));
+  const int threads = ThreadsFor(TaskConfig(job.resolved), 1);
+  const JobOutcome outcome = RunJob(
+      job.root, job.resolved, job.dir, job.num, threads, QueryGit(), task);
+  LedgerLock lock(sweep_dir);
+  Ledger ledger = Ledger::Load(sweep_dir);
+  LedgerEntry& entry = ledger.Entry(job.num);
+  entry.status = outcome.ok ? JobStatus::kDone : JobStatus::kFailed;
+  entry.error = outcome.error;
+  entry.metrics = outcome.metrics;
+  entry.wall_time_s = outcome.wall_time_s;
+  ledger.Save();
+  WriteSummary(sweep_dir, SummarizeBySeed(ledger.entries()));
+  if (!outcome.ok) {
+    std::fprintf(stderr,
+                 "Error executing job with overrides: [%s]: %s\n",
+                 fmt::format("{}", fmt::join(job.overrides, ", ")).c_str(),
+                 outcome.error.c_str());
+    return kExitError;
+  }
+  return kExitOk;
+}
+
+/// The flags that make an array task's `soma` compose like this one.
+std::vector<std::string> ArrayTaskArgs(const CliArgs& cli) {
+  std::vector<std::string> args = {
+      "-m",
+      "-cp",
+      fs::absolute(cli.config_path).lexically_normal().string(),
+      "-cn",
+      cli.config_name};
+  for (const std::string& dir : cli.config_dirs) {
+    args.push_back("-cd");
+    args.push_back(fs::absolute(dir).lexically_normal().string());
+  }
+  return args;
+}
+
+/// The SLURM launcher: submits `todo` as one job array and marks it pending
+/// in the ledger; with wait=false returns the exit code at once, else waits
+/// for the array (SIGINT cancels it), lists the failures with their logs and
+/// returns nullopt for the usual summary.
+std::optional<int> LaunchOnSlurm(const CliArgs& cli,
+                                 const fs::path& sweep_dir,
+                                 const std::vector<PlannedJob>& jobs,
+                                 const std::vector<const PlannedJob*>& todo) {
+  const ConfigNode& hydra = jobs.front().resolved.at("hydra");
+  const SlurmLauncherOptions options =
+      DecodeSlurmLauncherOptions(hydra.at("launcher"));
+  SbatchScriptSpec spec;
+  spec.sweep_dir = fs::absolute(sweep_dir).lexically_normal();
+  spec.job_name = "soma-" + spec.sweep_dir.filename().string();
+  spec.workdir = fs::current_path();
+  spec.executable = fs::read_symlink("/proc/self/exe").string();
+  spec.base_args = ArrayTaskArgs(cli);
+  for (const PlannedJob* job : todo) {
+    spec.tasks.push_back(
+        {job->num, fs::absolute(job->dir).lexically_normal(), job->overrides});
+  }
+  // Throws with sbatch's message; the ledger is untouched then.
+  const SlurmSubmission submission = SubmitSlurmArray(options, spec);
+  {
+    LedgerLock lock(sweep_dir);
+    Ledger ledger = Ledger::Load(sweep_dir);
+    for (const SlurmArrayTask& t : spec.tasks) {
+      LedgerEntry& entry = ledger.Entry(t.num);
+      entry.overrides = t.overrides;
+      entry.config_hash = jobs[t.num].hash;
+      entry.dir = t.dir.string();
+      entry.status = JobStatus::kPending;
+      entry.error.clear();
+      entry.metrics.clear();
+    }
+    ledger.Save();
+  }
+  SOMA_LOG(INFO,
+           "Submitted SLURM array job {} (jobs {}); script {}",
+           submission.array_job_id,
+           ArrayIndexList(submission.nums),
+           submission.script);
+  if (!options.wait) {
+    std::fputs(fmt::format("{}\n", spec.sweep_dir.string()).c_str(), stdout);
+    SOMA_LOG(INFO,
+             "Not waiting (hydra.launcher.wait=false): soma sweep status {}",
+             spec.sweep_dir.string());
+    return kExitOk;
+  }
+  WaitForSlurmJobs(sweep_dir, submission, options);
+  const std::string log_name = hydra.at("job").at("name").AsString() + ".log";
+  const Ledger ledger = Ledger::Load(sweep_dir);
+  for (const LedgerEntry& entry : ledger.entries()) {
+    if (entry.status == JobStatus::kDone) continue;
+    SOMA_LOG(ERROR,
+             "Job {} {}: log {}",
+             entry.num,
+             ToString(entry.status),
+             (fs::path(entry.dir) / log_name).string());
+  }
+  return std::nullopt;
+}
+
 int RunMultirun(const CliArgs& cli,
                 const std::vector<Override>& overrides,
                 const TaskFn& task) {
@@ -530,7 +696,15 @@ int RunMultirun(const CliArgs& cli,
   ConfigRepository repo(sweep.search_path);
   const std::vector<std::vector<std::string>> job_overrides =
       ExpandSweep(sweep.root, overrides, repo);
-  const fs::path sweep_dir = ResolveToString(sweep.root, "hydra.sweep.dir");
+  const std::optional<ArrayTask> array_task = ArrayTaskFromEnv();
+  if (array_task && job_overrides.size() != 1) {
+    throw ConfigError(fmt::format(
+        "An array task must run exactly one job; its overrides make {}",
+        job_overrides.size()));
+  }
+  const fs::path sweep_dir =
+      array_task ? array_task->sweep_dir
+                 : fs::path(ResolveToString(sweep.root, "hydra.sweep.dir"));
   int n_jobs = 1;
   if (const ConfigNode* n = sweep.root.FindPath("hydra.launcher.n_jobs");
       n && n->IsInt()) {
@@ -541,7 +715,7 @@ int RunMultirun(const CliArgs& cli,
   std::vector<PlannedJob> jobs;
   for (size_t i = 0; i < job_overrides.size(); ++i) {
     PlannedJob job;
-    job.num = static_cast<int>(i);
+    job.num = array_task ? array_task->num : static_cast<int>(i);
     job.overrides = job_overrides[i];
     try {
       job.root = Compose(MakeRequest(cli,
@@ -566,14 +740,18 @@ int RunMultirun(const CliArgs& cli,
     jobs.push_back(std::move(job));
   }
 
+  if (array_task) return RunArrayTask(jobs.front(), sweep_dir, task);
+  const std::string launcher = LauncherKind(jobs.front().resolved);
+
   CreateDirectories(sweep_dir);
   WriteFileAtomic(sweep_dir / "multirun.yaml", DumpYaml(sweep.root));
   Ledger ledger = Ledger::Load(sweep_dir);
   SOMA_LOG(INFO,
-           "Launching {} jobs in {} ({} at a time)",
+           "Launching {} jobs in {} ({})",
            jobs.size(),
            sweep_dir.string(),
-           n_jobs);
+           launcher == "slurm" ? std::string("as a SLURM job array")
+                               : fmt::format("{} at a time", n_jobs));
 
   const GitState git = QueryGit();
   std::vector<const PlannedJob*> todo;
@@ -609,7 +787,15 @@ int RunMultirun(const CliArgs& cli,
     ledger.Save();
   };
 
-  if (n_jobs == 1) {
+  if (launcher == "slurm") {
+    if (!todo.empty()) {
+      if (const std::optional<int> rc =
+              LaunchOnSlurm(cli, sweep_dir, jobs, todo)) {
+        return *rc;
+      }
+      ledger = Ledger::Load(sweep_dir);
+    }
+  } else if (n_jobs == 1) {
     for (const PlannedJob* job : todo) {
       start(*job);
       const int threads = ThreadsFor(TaskConfig(job->resolved), 1);

@@ -9,9 +9,13 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
+#include <fcntl.h>
 #include <set>
 #include <sstream>
+#include <sys/file.h>
+#include <unistd.h>
 
 namespace soma {
 namespace {
@@ -178,6 +182,25 @@ void Ledger::Save() const {
     csv << "," << CsvField(e.error) << "\n";
   }
   WriteFileAtomic(sweep_dir_ / "jobs.csv", csv.str());
+}
+
+LedgerLock::LedgerLock(const std::filesystem::path& sweep_dir) {
+  const std::filesystem::path path = sweep_dir / "jobs.lock";
+  fd_ = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd_ < 0) {
+    throw IoError(
+        fmt::format("Cannot open the ledger lock '{}'", path.string()));
+  }
+  while (::flock(fd_, LOCK_EX) != 0) {
+    if (errno != EINTR) {
+      ::close(fd_);
+      throw IoError(fmt::format("Cannot lock '{}'", path.string()));
+    }
+  }
+}
+
+LedgerLock::~LedgerLock() {
+  if (fd_ >= 0) ::close(fd_);  // releases the flock
 }
 
 std::vector<SummaryRow> SummarizeBySeed(

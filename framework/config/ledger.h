@@ -52,6 +52,20 @@ class Ledger {
   std::vector<LedgerEntry> entries_;  // sorted by num
 };
 
+/// An exclusive advisory lock (flock) on `<sweep_dir>/jobs.lock`, held for
+/// its lifetime. Processes that update one ledger concurrently (the SLURM
+/// launcher's array tasks, `soma sweep`) load, modify and save it under it.
+class LedgerLock {
+ public:
+  explicit LedgerLock(const std::filesystem::path& sweep_dir);
+  LedgerLock(const LedgerLock&) = delete;
+  LedgerLock& operator=(const LedgerLock&) = delete;
+  ~LedgerLock();
+
+ private:
+  int fd_ = -1;
+};
+
 /// One row of the seed aggregation: jobs that differ only by `seed`.
 struct SummaryRow {
   std::vector<std::string> overrides;  // without seed=...
