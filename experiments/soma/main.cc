@@ -33,6 +33,7 @@ int main(int argc, char** argv) {
         {"label", "input"},
         {"fit_layout", "input"},
         {"label_eval", "input"},
+        {"stream", "c3d.path"},
         {"trim", "input"}};
     const auto positional = kPositional.find(args.front());
     if (positional != kPositional.end() && args.size() > 1 &&
