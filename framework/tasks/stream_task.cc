@@ -83,6 +83,13 @@ StreamTaskOptions DecodeStreamTaskOptions(const ConfigNode& node) {
             "selected source",
             key));
       }
+      // Decoded now for its errors (a missing path, an unknown key), and
+      // built through the registry when the task runs.
+      if (options.source == "c3d") {
+        DecodeC3dReplayOptions(*child);
+      } else {
+        DecodeTcpSourceOptions(*child);
+      }
       options.source_node = *child;
       options.source_node.Set("name", std::string(key));
     }
