@@ -220,8 +220,19 @@ bool TcpFrameSource::Next(StreamFrame* frame) {
 bool TcpFrameSource::Ready() { return client_.Readable(0.0); }
 
 void TcpFrameSource::Reply(const LabelPacket& packet) {
-  if (!options_.reply) return;
-  client_.WriteAll(EncodeLabelPacket(packet), options_.idle_timeout_s, name_);
+  if (!options_.reply || replies_failed_) return;
+  try {
+    client_.WriteAll(EncodeLabelPacket(packet), options_.idle_timeout_s, name_);
+  } catch (const IoError& e) {
+    // A client that closed after its last frame, or stopped reading: its
+    // frames still count; labels are no longer sent.
+    replies_failed_ = true;
+    SOMA_LOG(WARNING,
+             "stream: no more label packets to {} ({}); frames are still "
+             "read",
+             name_,
+             e.what());
+  }
 }
 
 std::string TcpFrameSource::Describe() const { return name_; }

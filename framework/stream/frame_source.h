@@ -37,6 +37,8 @@ class FrameSource {
   /// backlog, for the drop policy).
   virtual bool Ready() = 0;
   /// Sends the labels of a frame back (TCP with replies on); else nothing.
+  /// A client that no longer takes them (closed, or not reading within the
+  /// idle timeout) is logged once and sent nothing more; its frames count.
   virtual void Reply(const LabelPacket& packet) { (void)packet; }
 
   /// Metres per unit of the frames' coordinates.
@@ -119,6 +121,7 @@ class TcpFrameSource : public FrameSource {
   std::string name_;
   int64_t frames_ = 0;
   int64_t last_number_ = 0;
+  bool replies_failed_ = false;  // the client stopped taking label packets
   std::vector<uint8_t> buffer_;
 };
 

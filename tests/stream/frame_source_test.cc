@@ -83,6 +83,25 @@ TEST(TcpFrameSource, ReceivesFramesAndRepliesInOrder) {
   s.client.get();
 }
 
+TEST(TcpFrameSource, ClientClosingWithoutReadingRepliesEndsTheStream) {
+  Session s(Local(), [](FrameClient& c) {
+    for (int64_t n = 1; n <= 50; ++n) c.Send(Frame(n, 40));
+    c.Close();  // no reply read
+  });
+  s.client.get();  // the client is gone before any reply
+  StreamFrame frame;
+  int frames = 0;
+  while (s.source.Next(&frame)) {
+    LabelPacket reply;
+    reply.number = frame.number;
+    reply.label_ids.assign(40, 0);
+    reply.confidences.assign(40, 1.0f);
+    EXPECT_NO_THROW(s.source.Reply(reply));
+    ++frames;
+  }
+  EXPECT_EQ(frames, 50);
+}
+
 TEST(TcpFrameSource, DisconnectInsideAFrameIsAnErrorAfterTheFullFrames) {
   Session s(Local(), [](FrameClient& c) {
     c.Send(Frame(1, 3));
