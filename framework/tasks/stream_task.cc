@@ -35,9 +35,13 @@
 #include "framework/model/labeler.h"
 #include "framework/model/torch_utils.h"
 #include "framework/registry/registry.h"
+#include "framework/solve/body_solver.h"
+#include "framework/solve/solve_output.h"
 #include "framework/stream/frame_source.h"
+#include "framework/stream/online_body.h"
 #include "framework/stream/stream_labeler.h"
 #include "framework/stream/stream_recorder.h"
+#include "framework/tasks/components.h"
 #include "framework/tasks/task.h"
 #include "framework/train/model_zoo.h"
 #include "framework/train/trainer.h"
@@ -65,6 +69,12 @@ struct StreamTaskOptions {
   std::string gt;  // optional ground truth to score against
   std::string stem = "stream";
   int threads = 1;  // intra-op threads of the labeller
+  // The online body (task.solve): stage I on the first frames, then stage II
+  // per frame with a Ceres time limit. Body, layout, solver options and pose
+  // prior come from the `body`, `layout`, `solver`, `pose_prior` groups.
+  bool solve = false;
+  int calibration_frames = 240;
+  double max_solver_time_ms = 2.0;  // per stage II solve; <= 0: none
 };
 
 StreamTaskOptions DecodeStreamTaskOptions(const ConfigNode& node) {
@@ -140,6 +150,16 @@ StreamTaskOptions DecodeStreamTaskOptions(const ConfigNode& node) {
   }
   reader.Read("stem", &options.stem);
   reader.Read("threads", &options.threads);
+  if (const ConfigNode* solve = reader.Child("solve")) {
+    ConfigReader sr(*solve);
+    sr.Read("enabled", &options.solve);
+    sr.Read("calibration_frames", &options.calibration_frames);
+    sr.Read("max_solver_time_ms", &options.max_solver_time_ms);
+    sr.Check("calibration_frames",
+             options.calibration_frames >= 1,
+             "calibration_frames >= 1");
+    sr.Finish();
+  }
   reader.Check("threads", options.threads >= 1, "threads >= 1");
   reader.Finish();
   return options;
@@ -183,6 +203,32 @@ class StreamTask : public Task {
     StreamLabeler labeler(model.ptr(), options_.labeler);
     const int null = labeler.num_labels();
 
+    // The online body: built before the stream starts (stage I waits for
+    // the calibration frames).
+    std::unique_ptr<BodyModel> body;
+    std::unique_ptr<MarkerLayout> layout;
+    std::unique_ptr<PosePrior> prior;
+    std::unique_ptr<OnlineBodySolver> solver;
+    if (options_.solve) {
+      body = std::make_unique<BodyModel>(BuildBody(cfg, build));
+      layout = std::make_unique<MarkerLayout>(BuildLayout(cfg, *body, build));
+      prior = Instantiate<PosePriorSource>(cfg.at("pose_prior"), build)
+                  ->Make(*body);
+      OnlineBodyOptions body_options;
+      body_options.calibration_frames = options_.calibration_frames;
+      body_options.solve = DecodeBodySolveOptions(cfg.at("solver"));
+      body_options.solve.stageii.solver.max_solver_time_s =
+          std::max(0.0, options_.max_solver_time_ms * 1e-3);
+      solver = std::make_unique<OnlineBodySolver>(
+          *body, *layout, prior.get(), info.labels, body_options);
+      if (!solver->absent_labels().empty()) {
+        SOMA_LOG(WARNING,
+                 "stream: layout labels the labeller cannot give (always "
+                 "missing in the body fit): {}",
+                 fmt::join(solver->absent_labels(), " "));
+      }
+    }
+
     source->Open(info.labels);
     const double budget_ms = options_.budget_ms > 0
                                  ? options_.budget_ms
@@ -202,26 +248,36 @@ class StreamTask : public Task {
         info.labels, source->frame_rate(), source->units());
     LabeledC3dRecorder per_frame(
         info.labels, source->frame_rate(), source->units());
-    LatencyStats latency, forward;
+    LatencyStats latency, forward, solve_times;
+    int64_t body_solved = 0;
+    double body_rms = 0.0;
     std::ostringstream csv;
-    csv << "frame,number,points,label_ms,latency_ms,dropped\n";
+    csv << "frame,number,points,label_ms,solve_ms,latency_ms,dropped\n";
     int64_t index = 0, dropped = 0, late = 0;
     Timer wall, since_log;
     const auto write_outputs = [&] {
       online.Write(ctx.output_dir / (stem + "_labeled.c3d"));
       per_frame.Write(ctx.output_dir / (stem + "_per_frame.c3d"));
       WriteFileAtomic(ctx.output_dir / "latency.csv", csv.str());
+      if (solver != nullptr && solver->calibrated()) {
+        SolveOutput fit = solver->output();
+        fit.frame_rate = source->frame_rate();
+        WriteSolveOutput(ctx.output_dir / (stem + "_stageii.h5"), fit);
+        WriteFileAtomic(ctx.output_dir / (stem + "_solve_summary.csv"),
+                        SolveSummariesToCsv(fit.summaries));
+      }
     };
     const auto emit_dropped = [&](const StreamFrame& frame) {
       const std::vector<int> nulls(size_t(frame.num_points()), null);
       online.Append(frame, nulls);
       per_frame.Append(frame, nulls);
+      if (solver != nullptr) solver->AddFrame(frame, nulls, metres_per_unit);
       LabelPacket packet;
       packet.number = frame.number;
       packet.flags = kLabelFlagDropped;
       source->Reply(packet);
       csv << fmt::format(
-          "{},{},{},,,1\n", index, frame.number, frame.num_points());
+          "{},{},{},,,,1\n", index, frame.number, frame.num_points());
       ++dropped;
       ++index;
     };
@@ -235,6 +291,16 @@ class StreamTask : public Task {
           }
         }
         const StreamLabels out = labeler.Label(frame, metres_per_unit, index);
+        double solve_ms = 0.0;
+        if (solver != nullptr) {
+          Timer solve_timer;
+          const SolveSummary fit =
+              solver->AddFrame(frame, out.labels, metres_per_unit);
+          solve_ms = solve_timer.ElapsedSeconds() * 1e3;
+          solve_times.Add(solve_ms);
+          body_solved += fit.usable();
+          body_rms += fit.usable() ? fit.rms_m : 0.0;
+        }
         LabelPacket packet;
         packet.number = frame.number;
         packet.label_ids.resize(out.labels.size());
@@ -250,11 +316,12 @@ class StreamTask : public Task {
         latency.Add(ms);
         forward.Add(out.label_ms);
         late += ms > budget_ms;
-        csv << fmt::format("{},{},{},{:.4f},{:.4f},0\n",
+        csv << fmt::format("{},{},{},{:.4f},{:.4f},{:.4f},0\n",
                            index,
                            frame.number,
                            frame.num_points(),
                            out.label_ms,
+                           solve_ms,
                            ms);
         ++index;
         if (since_log.ElapsedSeconds() > 10) {
@@ -291,6 +358,28 @@ class StreamTask : public Task {
     ctx.ReportMetric("label_p50_ms", forward.Quantile(0.5));
     ctx.ReportMetric("label_p99_ms", forward.Quantile(0.99));
     ctx.ReportMetric("swaps", double(labeler.voter().num_swaps()));
+    std::string body_line;
+    if (solver != nullptr) {
+      const double rms_mm =
+          body_solved > 0 ? 1e3 * body_rms / double(body_solved) : 0.0;
+      ctx.ReportMetric("body_frames", double(body_solved));
+      ctx.ReportMetric("body_mean_rms_mm", rms_mm);
+      ctx.ReportMetric("solve_p50_ms", solve_times.Quantile(0.5));
+      ctx.ReportMetric("solve_p99_ms", solve_times.Quantile(0.99));
+      body_line = fmt::format(
+          "- **Body:** {} (stage I on the first {} frames: {}); stage II "
+          "solved {} frames, mean marker RMS {:.2f} mm, solve p50 {:.3f} ms "
+          "p99 {:.3f} ms (limit {:g} ms per solve); `{}_stageii.h5`\n",
+          solver->calibrated() ? "calibrated" : "not calibrated",
+          options_.calibration_frames,
+          solver->stagei_summary().BriefReport(),
+          body_solved,
+          rms_mm,
+          solve_times.Quantile(0.5),
+          solve_times.Quantile(0.99),
+          options_.max_solver_time_ms,
+          stem);
+    }
 
     std::string scores;
     if (!options_.gt.empty()) {
@@ -362,6 +451,7 @@ class StreamTask : public Task {
         options_.labeler.tracklet.swap_frames,
         labeler.voter().num_swaps(),
         ToString(options_.labeler.tracklet.duplicates));
+    md += body_line;
     if (!scores.empty()) {
       md += fmt::format(
           "\nScored against `{}` (SOMA's metrics, mean ± std over frames):\n\n"

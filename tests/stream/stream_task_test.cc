@@ -2,10 +2,14 @@
 // real HDM05 take: over TCP with the reference client (which disconnects
 // mid-frame) and as a C3D replay with both backlog policies.
 #include "framework/body/marker_layout.h"
+#include "framework/config/compose.h"
+#include "framework/config/interpolation.h"
 #include "framework/config/node.h"
+#include "framework/config/override.h"
 #include "framework/core/error.h"
 #include "framework/io/c3d.h"
 #include "framework/registry/registry.h"
+#include "framework/solve/solve_output.h"
 #include "framework/stream/frame_source.h"
 #include "framework/tasks/task.h"
 #include "framework/testing/testing.h"
@@ -198,6 +202,47 @@ TEST(StreamTask, BadSourceOptionsAreOneLineConfigErrors) {
   node.Set("source", "udp");
   EXPECT_THAT(testing::ErrorMessage<ConfigError>([&] { BuildTask(node); }),
               HasSubstr("one of c3d, tcp"));
+}
+
+/// The project's composed config with `overrides` (the `soma` command line).
+ConfigNode ComposeConfig(const std::vector<std::string>& overrides) {
+  const std::string configs = (testing::SourceDir() / "configs").string();
+  ComposeRequest request{.search_path = {configs}};
+  for (const std::string& text : overrides) {
+    request.overrides.push_back(ParseOverride(text));
+  }
+  ConfigNode resolved = Resolve(Compose(request).root, DefaultResolvers());
+  resolved.Erase("hydra");
+  return resolved;
+}
+
+TEST(StreamTask, OnlineBodyCalibratesThenSolvesEveryFrame) {
+  const ConfigNode cfg = ComposeConfig({"task=stream",
+                                        "task.c3d.path=" + Hdm05Take(),
+                                        "task.c3d.realtime=false",
+                                        "task.c3d.max_frames=60",
+                                        "task.checkpoint=" + Hdm05Model(),
+                                        "task.solve.enabled=true",
+                                        "task.solve.calibration_frames=30"});
+  RunContext ctx;
+  ctx.output_dir = testing::CreateTestDir();
+  BuildContext build;
+  Instantiate<Task>(cfg.at("task"), build)->Run(cfg, ctx);
+  const SolveOutput fit =
+      ReadSolveOutput(ctx.output_dir / "HDM_mm_01-02_03_120_stageii.h5");
+  ASSERT_EQ(fit.summaries.size(), 60u);
+  int usable = 0;
+  for (int t = 0; t < 60; ++t) {
+    if (t < 30) {
+      EXPECT_FALSE(fit.summaries[size_t(t)].usable()) << t;  // calibrating
+    } else {
+      usable += fit.summaries[size_t(t)].usable();
+    }
+  }
+  EXPECT_GE(usable, 28);
+  EXPECT_EQ(ctx.metrics().at("body_frames"), usable);
+  EXPECT_GT(ctx.metrics().at("body_mean_rms_mm"), 0.0);
+  EXPECT_LT(ctx.metrics().at("body_mean_rms_mm"), 30.0);
 }
 
 }  // namespace

@@ -1,0 +1,139 @@
+#include "framework/stream/online_body.h"
+
+#include "framework/body/marker_layout.h"
+#include "framework/core/error.h"
+#include "framework/core/logging.h"
+#include "framework/solve/stage_i.h"
+
+#include <fmt/format.h>
+
+#include <cmath>
+
+namespace soma {
+
+void OnlineBodyOptions::Validate() const {
+  if (calibration_frames < 1) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. task.body.calibration_frames = {}. Violated "
+        "constraint: calibration_frames >= 1",
+        calibration_frames));
+  }
+  solve.Validate();
+}
+
+OnlineBodySolver::OnlineBodySolver(const BodyModel& body,
+                                   const MarkerLayout& layout,
+                                   const PosePrior* prior,
+                                   const std::vector<std::string>& labels,
+                                   OnlineBodyOptions options)
+    : body_(body),
+      prior_(prior),
+      options_(std::move(options)),
+      model_(body, MarkerVertices(layout).vertex_ids) {
+  options_.Validate();
+  const LayoutMarkerVertices vertices = MarkerVertices(layout);
+  distances_ = vertices.distances;
+  std::vector<bool> covered(size_t(layout.num_markers()), false);
+  for (const std::string& label : labels) {
+    const int m = layout.FindLabel(CanonicalMarkerLabel(label));
+    marker_of_.push_back(m);
+    if (m >= 0) covered[size_t(m)] = true;
+  }
+  const std::vector<std::string> layout_labels = layout.Labels();
+  for (int m = 0; m < layout.num_markers(); ++m) {
+    if (!covered[size_t(m)]) absent_.push_back(layout_labels[size_t(m)]);
+  }
+  output_.body = body.name;
+  output_.joint_names = body.joint_names;
+  output_.labels = layout_labels;
+  output_.marker_vertex_ids = vertices.vertex_ids;
+}
+
+OnlineBodySolver::~OnlineBodySolver() = default;
+
+Eigen::Matrix3Xd OnlineBodySolver::Observed(const StreamFrame& frame,
+                                            std::span<const int> labels,
+                                            double metres_per_unit) const {
+  Eigen::Matrix3Xd observed =
+      Eigen::Matrix3Xd::Constant(3, model_.num_markers(), std::nan(""));
+  for (int i = 0; i < frame.num_points(); ++i) {
+    const int l = labels[size_t(i)];
+    if (l < 0 || l >= int(marker_of_.size()) || !frame.IsPresent(i)) continue;
+    const int m = marker_of_[size_t(l)];
+    if (m < 0) continue;
+    for (int c = 0; c < 3; ++c) {
+      observed(c, m) = frame.xyz[3 * size_t(i) + c] * metres_per_unit;
+    }
+  }
+  return observed;
+}
+
+void OnlineBodySolver::Calibrate() {
+  try {
+    const std::vector<int> picked =
+        PickStageIFrames(calibration_, options_.solve.stagei);
+    std::vector<Eigen::Matrix3Xd> frames;
+    for (int f : picked) frames.push_back(calibration_[size_t(f)]);
+    const StageIResult stagei = SolveStageI(
+        body_, &model_, distances_, frames, prior_, options_.solve.stagei);
+    stagei_summary_ = stagei.summary;
+    if (!stagei.summary.usable()) {
+      throw Error(fmt::format("stage I failed: {}", stagei.summary.message));
+    }
+    output_.betas = stagei.betas;
+    output_.markers_latent = model_.latent_markers();
+    output_.marker_offsets = model_.offsets();
+    output_.stagei_frames = picked;
+    solver_ = std::make_unique<StageIISolver>(
+        &model_, prior_, options_.solve.stageii);
+    SOMA_LOG(INFO,
+             "stream: body calibrated on {} of the first {} frames: {}",
+             picked.size(),
+             calibration_.size(),
+             stagei.summary.BriefReport());
+  } catch (const Error& e) {
+    failed_ = true;
+    SOMA_LOG(ERROR,
+             "stream: no body: stage I on the first {} frames failed ({}); "
+             "labels continue",
+             calibration_.size(),
+             e.what());
+  }
+  calibration_.clear();
+  calibration_.shrink_to_fit();
+}
+
+SolveSummary OnlineBodySolver::AddFrame(const StreamFrame& frame,
+                                        std::span<const int> labels,
+                                        double metres_per_unit) {
+  SOMA_CHECK_EQ(labels.size(), size_t(frame.num_points()));
+  const int index = static_cast<int>(output_.summaries.size());
+  Eigen::Matrix3Xd observed = Observed(frame, labels, metres_per_unit);
+  SolveSummary summary;
+  summary.frame = index;
+  Eigen::VectorXd params =
+      Eigen::VectorXd::Constant(3 + 3 * body_.num_joints(), std::nan(""));
+  Eigen::Matrix3Xd simulated =
+      Eigen::Matrix3Xd::Constant(3, model_.num_markers(), std::nan(""));
+  if (solver_ == nullptr && !failed_) {
+    calibration_.push_back(observed);
+    summary.skipped_reason = "calibrating";
+    summary.message = "calibration segment (stage I)";
+    if (int(calibration_.size()) >= options_.calibration_frames) Calibrate();
+  } else if (failed_) {
+    summary.skipped_reason = "no_body";
+    summary.message = "stage I failed";
+  } else {
+    summary = solver_->SolveFrame(index, observed, &params);
+    if (summary.usable()) {
+      model_.Evaluate(params.data(), {}, &simulated, nullptr);
+    }
+  }
+  output_.frame_params.push_back(std::move(params));
+  output_.observed.push_back(std::move(observed));
+  output_.simulated.push_back(std::move(simulated));
+  output_.summaries.push_back(summary);
+  return summary;
+}
+
+}  // namespace soma
