@@ -22,11 +22,18 @@
 // full frame, atomically):
 //  - `<stem>_labeled.c3d`: the final (online) labels, `soma label`'s layout;
 //  - `<stem>_per_frame.c3d`: the per-frame labels of the same frames;
-//  - `latency.csv`: per frame: number, points, forward ms, latency ms
-//    (arrival -> labels emitted), dropped;
+//  - `latency.csv`: per frame: number, points, forward ms, solve ms,
+//    latency ms (arrival -> labels emitted), body latency ms (arrival ->
+//    body solved; the body is solved after the labels are sent), dropped;
+//  - with `task.solve.enabled`: `<stem>_stageii.h5` and
+//    `<stem>_solve_summary.csv`, the online body (framework/stream/
+//    online_body.h: stage I on the first `calibration_frames`, then stage II
+//    per frame, warm-started, `max_solver_time_ms` per solve);
 //  - `summary.md`; metrics: frames, frames_dropped, frames_late,
-//    latency_{p50,p99,max}_ms, label_{p50,p99}_ms and, with `gt`, acc/f1 of
-//    both outputs (SOMA's metrics, the `eval` task).
+//    latency_{p50,p99,max}_ms, label_{p50,p99}_ms, with the body
+//    body_frames, body_mean_rms_mm, solve_{p50,p99}_ms,
+//    body_latency_{p50,p99,max}_ms, and with `gt`
+//    acc/f1 of both outputs (SOMA's metrics, the `eval` task).
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
@@ -248,11 +255,12 @@ class StreamTask : public Task {
         info.labels, source->frame_rate(), source->units());
     LabeledC3dRecorder per_frame(
         info.labels, source->frame_rate(), source->units());
-    LatencyStats latency, forward, solve_times;
+    LatencyStats latency, forward, solve_times, body_latency;
     int64_t body_solved = 0;
     double body_rms = 0.0;
     std::ostringstream csv;
-    csv << "frame,number,points,label_ms,solve_ms,latency_ms,dropped\n";
+    csv << "frame,number,points,label_ms,solve_ms,latency_ms,body_latency_ms,"
+           "dropped\n";
     int64_t index = 0, dropped = 0, late = 0;
     Timer wall, since_log;
     const auto write_outputs = [&] {
@@ -277,7 +285,7 @@ class StreamTask : public Task {
       packet.flags = kLabelFlagDropped;
       source->Reply(packet);
       csv << fmt::format(
-          "{},{},{},,,,1\n", index, frame.number, frame.num_points());
+          "{},{},{},,,,,1\n", index, frame.number, frame.num_points());
       ++dropped;
       ++index;
     };
@@ -291,16 +299,6 @@ class StreamTask : public Task {
           }
         }
         const StreamLabels out = labeler.Label(frame, metres_per_unit, index);
-        double solve_ms = 0.0;
-        if (solver != nullptr) {
-          Timer solve_timer;
-          const SolveSummary fit =
-              solver->AddFrame(frame, out.labels, metres_per_unit);
-          solve_ms = solve_timer.ElapsedSeconds() * 1e3;
-          solve_times.Add(solve_ms);
-          body_solved += fit.usable();
-          body_rms += fit.usable() ? fit.rms_m : 0.0;
-        }
         LabelPacket packet;
         packet.number = frame.number;
         packet.label_ids.resize(out.labels.size());
@@ -316,13 +314,28 @@ class StreamTask : public Task {
         latency.Add(ms);
         forward.Add(out.label_ms);
         late += ms > budget_ms;
-        csv << fmt::format("{},{},{},{:.4f},{:.4f},{:.4f},0\n",
+        // The body after the labels are out: it delays the next frame, not
+        // these labels.
+        double solve_ms = 0.0, body_ms = 0.0;
+        if (solver != nullptr) {
+          Timer solve_timer;
+          const SolveSummary fit =
+              solver->AddFrame(frame, out.labels, metres_per_unit);
+          solve_ms = solve_timer.ElapsedSeconds() * 1e3;
+          body_ms = (SteadySeconds() - frame.arrival) * 1e3;
+          solve_times.Add(solve_ms);
+          body_latency.Add(body_ms);
+          body_solved += fit.usable();
+          body_rms += fit.usable() ? fit.rms_m : 0.0;
+        }
+        csv << fmt::format("{},{},{},{:.4f},{:.4f},{:.4f},{:.4f},0\n",
                            index,
                            frame.number,
                            frame.num_points(),
                            out.label_ms,
                            solve_ms,
-                           ms);
+                           ms,
+                           body_ms);
         ++index;
         if (since_log.ElapsedSeconds() > 10) {
           since_log.Restart();
@@ -366,10 +379,14 @@ class StreamTask : public Task {
       ctx.ReportMetric("body_mean_rms_mm", rms_mm);
       ctx.ReportMetric("solve_p50_ms", solve_times.Quantile(0.5));
       ctx.ReportMetric("solve_p99_ms", solve_times.Quantile(0.99));
+      ctx.ReportMetric("body_latency_p50_ms", body_latency.Quantile(0.5));
+      ctx.ReportMetric("body_latency_p99_ms", body_latency.Quantile(0.99));
+      ctx.ReportMetric("body_latency_max_ms", body_latency.Max());
       body_line = fmt::format(
           "- **Body:** {} (stage I on the first {} frames: {}); stage II "
           "solved {} frames, mean marker RMS {:.2f} mm, solve p50 {:.3f} ms "
-          "p99 {:.3f} ms (limit {:g} ms per solve); `{}_stageii.h5`\n",
+          "p99 {:.3f} ms (limit {:g} ms per solve); arrival -> body p50 "
+          "{:.3f} ms, p99 {:.3f} ms, max {:.3f} ms; `{}_stageii.h5`\n",
           solver->calibrated() ? "calibrated" : "not calibrated",
           options_.calibration_frames,
           solver->stagei_summary().BriefReport(),
@@ -378,6 +395,9 @@ class StreamTask : public Task {
           solve_times.Quantile(0.5),
           solve_times.Quantile(0.99),
           options_.max_solver_time_ms,
+          body_latency.Quantile(0.5),
+          body_latency.Quantile(0.99),
+          body_latency.Max(),
           stem);
     }
 
