@@ -8,6 +8,7 @@
 #include <fmt/format.h>
 
 #include <cmath>
+#include <filesystem>
 
 namespace soma {
 
@@ -47,6 +48,51 @@ OnlineBodySolver::OnlineBodySolver(const BodyModel& body,
   output_.joint_names = body.joint_names;
   output_.labels = layout_labels;
   output_.marker_vertex_ids = vertices.vertex_ids;
+  if (!options_.stagei_file.empty()) LoadStageI(options_.stagei_file);
+}
+
+void OnlineBodySolver::LoadStageI(const std::string& path) {
+  const SolveOutput fit = ReadSolveOutput(path);
+  if (fit.body != body_.name) {
+    throw IoError(fmt::format(
+        "{}: fitted on body '{}'; this stream's body is '{}' (task.solve."
+        "stagei needs a fit of the same body and layout)",
+        path,
+        fit.body,
+        body_.name));
+  }
+  if (fit.marker_vertex_ids != output_.marker_vertex_ids ||
+      fit.labels != output_.labels) {
+    throw IoError(fmt::format(
+        "{}: fitted with another layout ({} markers; this stream's layout "
+        "has {})",
+        path,
+        fit.labels.size(),
+        output_.labels.size()));
+  }
+  if (fit.betas.size() != model_.num_betas() ||
+      fit.marker_offsets.cols() != model_.num_markers()) {
+    throw IoError(
+        fmt::format("{}: {} betas and {} marker offsets; the body "
+                    "has {} betas and {} markers",
+                    path,
+                    fit.betas.size(),
+                    fit.marker_offsets.cols(),
+                    model_.num_betas(),
+                    model_.num_markers()));
+  }
+  model_.SetShape(fit.betas, fit.marker_offsets);
+  output_.betas = fit.betas;
+  output_.markers_latent = model_.latent_markers();
+  output_.marker_offsets = model_.offsets();
+  stagei_summary_ = SolveSummary{};
+  stagei_summary_.termination = SolveTermination::kConverged;
+  stagei_summary_.message = fmt::format("stage I from {}", path);
+  solver_ =
+      std::make_unique<StageIISolver>(&model_, prior_, options_.solve.stageii);
+  SOMA_LOG(INFO,
+           "stream: body from {} (stage I of an earlier fit; no calibration)",
+           path);
 }
 
 OnlineBodySolver::~OnlineBodySolver() = default;

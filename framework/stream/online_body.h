@@ -1,8 +1,8 @@
 // The online body of `soma stream` (issue #26 item 3): stage I on a
-// calibration segment (the first frames of the stream, labelled online),
-// then stage II on every later frame as it arrives, warm-started from the
-// previous frame, within the per-solve time limit of
-// `stageii.solver.max_solver_time_s`.
+// calibration segment (the first frames of the stream, labelled online) or
+// from a file (an earlier fit's `_stageii.h5`), then stage II on every later
+// frame as it arrives, warm-started from the previous frame, within the
+// per-solve time limit of `stageii.solver.max_solver_time_s`.
 #pragma once
 
 #include "framework/solve/body_solver.h"
@@ -23,6 +23,10 @@ struct OnlineBodyOptions {
   /// Frames of the stream's start used for stage I (labelled online; stage I
   /// picks its frames among them, BodySolveOptions::stagei).
   int calibration_frames = 240;
+  /// Instead of a calibration: the stage I result of an earlier fit of the
+  /// same subject, a `soma solve` or `soma stream` `<take>_stageii.h5`
+  /// (its betas and marker offsets; same body and layout). Empty: none.
+  std::string stagei_file;
   /// Stage I and II options (start/end/stride/threads are not used).
   BodySolveOptions solve;
   void Validate() const;  // ConfigError on violation
@@ -33,7 +37,8 @@ class OnlineBodySolver {
  public:
   /// `labels`: the labeller's label names (ids of AddFrame's labels; null =
   /// labels.size()), matched to `layout` by canonical name. `body`, `layout`
-  /// and `prior` (may be null) must outlive the solver.
+  /// and `prior` (may be null) must outlive the solver. With a stagei_file,
+  /// IoError if it cannot be read or was fitted with another body/layout.
   OnlineBodySolver(const BodyModel& body,
                    const MarkerLayout& layout,
                    const PosePrior* prior,
@@ -62,6 +67,7 @@ class OnlineBodySolver {
                             std::span<const int> labels,
                             double metres_per_unit) const;
   void Calibrate();
+  void LoadStageI(const std::string& path);
 
   const BodyModel& body_;
   const PosePrior* prior_;

@@ -81,6 +81,7 @@ struct StreamTaskOptions {
   // prior come from the `body`, `layout`, `solver`, `pose_prior` groups.
   bool solve = false;
   int calibration_frames = 240;
+  std::string stagei_file;  // an earlier fit's _stageii.h5 (no calibration)
   double max_solver_time_ms = 2.0;  // per stage II solve; <= 0: none
 };
 
@@ -161,6 +162,12 @@ StreamTaskOptions DecodeStreamTaskOptions(const ConfigNode& node) {
     ConfigReader sr(*solve);
     sr.Read("enabled", &options.solve);
     sr.Read("calibration_frames", &options.calibration_frames);
+    if (const ConfigNode* stagei = solve->Find("stagei");
+        stagei != nullptr && stagei->IsNull()) {
+      sr.Ignore("stagei");
+    } else {
+      sr.Read("stagei", &options.stagei_file);
+    }
     sr.Read("max_solver_time_ms", &options.max_solver_time_ms);
     sr.Check("calibration_frames",
              options.calibration_frames >= 1,
@@ -223,6 +230,7 @@ class StreamTask : public Task {
                   ->Make(*body);
       OnlineBodyOptions body_options;
       body_options.calibration_frames = options_.calibration_frames;
+      body_options.stagei_file = options_.stagei_file;
       body_options.solve = DecodeBodySolveOptions(cfg.at("solver"));
       body_options.solve.stageii.solver.max_solver_time_s =
           std::max(0.0, options_.max_solver_time_ms * 1e-3);
@@ -383,13 +391,16 @@ class StreamTask : public Task {
       ctx.ReportMetric("body_latency_p99_ms", body_latency.Quantile(0.99));
       ctx.ReportMetric("body_latency_max_ms", body_latency.Max());
       body_line = fmt::format(
-          "- **Body:** {} (stage I on the first {} frames: {}); stage II "
-          "solved {} frames, mean marker RMS {:.2f} mm, solve p50 {:.3f} ms "
-          "p99 {:.3f} ms (limit {:g} ms per solve); arrival -> body p50 "
-          "{:.3f} ms, p99 {:.3f} ms, max {:.3f} ms; `{}_stageii.h5`\n",
+          "- **Body:** {} ({}); stage II solved {} frames, mean marker RMS "
+          "{:.2f} mm, solve p50 {:.3f} ms p99 {:.3f} ms (limit {:g} ms per "
+          "solve); arrival -> body p50 {:.3f} ms, p99 {:.3f} ms, max {:.3f} "
+          "ms; `{}_stageii.h5`\n",
           solver->calibrated() ? "calibrated" : "not calibrated",
-          options_.calibration_frames,
-          solver->stagei_summary().BriefReport(),
+          options_.stagei_file.empty()
+              ? fmt::format("stage I on the first {} frames: {}",
+                            options_.calibration_frames,
+                            solver->stagei_summary().BriefReport())
+              : fmt::format("stage I from `{}`", options_.stagei_file),
           body_solved,
           rms_mm,
           solve_times.Quantile(0.5),

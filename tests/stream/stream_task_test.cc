@@ -243,6 +243,41 @@ TEST(StreamTask, OnlineBodyCalibratesThenSolvesEveryFrame) {
   EXPECT_EQ(ctx.metrics().at("body_frames"), usable);
   EXPECT_GT(ctx.metrics().at("body_mean_rms_mm"), 0.0);
   EXPECT_LT(ctx.metrics().at("body_mean_rms_mm"), 30.0);
+
+  // The same subject again, stage I from that fit: no calibration.
+  const fs::path stagei = ctx.output_dir / "HDM_mm_01-02_03_120_stageii.h5";
+  const ConfigNode again =
+      ComposeConfig({"task=stream",
+                     "task.c3d.path=" + Hdm05Take(),
+                     "task.c3d.realtime=false",
+                     "task.c3d.max_frames=20",
+                     "task.checkpoint=" + Hdm05Model(),
+                     "task.solve.enabled=true",
+                     "task.solve.stagei=" + stagei.string()});
+  RunContext second;
+  second.output_dir = ctx.output_dir / "again";
+  fs::create_directories(second.output_dir);
+  Instantiate<Task>(again.at("task"), build)->Run(again, second);
+  EXPECT_GE(second.metrics().at("body_frames"), 19);
+  const SolveOutput refit =
+      ReadSolveOutput(second.output_dir / "HDM_mm_01-02_03_120_stageii.h5");
+  EXPECT_EQ(refit.betas, fit.betas);
+
+  // A fit of another layout is refused, naming the file.
+  const ConfigNode other =
+      ComposeConfig({"task=stream",
+                     "task.c3d.path=" + Hdm05Take(),
+                     "task.c3d.realtime=false",
+                     "task.checkpoint=" + Hdm05Model(),
+                     "task.solve.enabled=true",
+                     "task.solve.stagei=" + stagei.string(),
+                     "layout.exclude=[RBAC]"});
+  RunContext third;
+  third.output_dir = second.output_dir;
+  EXPECT_THAT(testing::ErrorMessage<IoError>([&] {
+                Instantiate<Task>(other.at("task"), build)->Run(other, third);
+              }),
+              HasSubstr(stagei.string() + ": fitted with another layout"));
 }
 
 }  // namespace
