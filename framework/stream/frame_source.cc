@@ -169,10 +169,55 @@ void TcpFrameSource::Open(const std::vector<std::string>& labels) {
   const std::vector<uint8_t> hello = EncodeHelloPacket(labels);
   client_.WriteAll(hello, options_.idle_timeout_s, name_);
   SOMA_LOG(INFO, "stream: client connected on {}", name_);
+  reader_ = std::thread([this] { ReadLoop(); });
+}
+
+TcpFrameSource::~TcpFrameSource() {
+  if (reader_.joinable()) {
+    client_.Shutdown();  // wakes the reader from its poll
+    reader_.join();
+  }
+}
+
+void TcpFrameSource::ReadLoop() {
+  try {
+    StreamFrame frame;
+    while (ReadOne(&frame)) {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (queue_.size() >= kMaxBacklogFrames) {
+        throw IoError(fmt::format(
+            "{}: {} frames received and not yet labelled; the client sends "
+            "faster than frames are labelled (task.backlog=drop keeps up)",
+            name_,
+            queue_.size()));
+      }
+      queue_.push_back(std::move(frame));
+      frame = StreamFrame{};
+      ready_.notify_one();
+    }
+    std::lock_guard<std::mutex> lock(mutex_);
+    ended_ = true;
+  } catch (...) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    error_ = std::current_exception();
+  }
+  ready_.notify_one();
 }
 
 bool TcpFrameSource::Next(StreamFrame* frame) {
-  SOMA_CHECK(client_.is_open()) << "TcpFrameSource: Next() before Open()";
+  SOMA_CHECK(reader_.joinable()) << "TcpFrameSource: Next() before Open()";
+  std::unique_lock<std::mutex> lock(mutex_);
+  ready_.wait(lock, [&] { return !queue_.empty() || ended_ || error_; });
+  if (!queue_.empty()) {
+    *frame = std::move(queue_.front());
+    queue_.pop_front();
+    return true;
+  }
+  if (error_) std::rethrow_exception(error_);
+  return false;
+}
+
+bool TcpFrameSource::ReadOne(StreamFrame* frame) {
   uint8_t header_bytes[kFramePacketHeaderBytes];
   const size_t got =
       client_.ReadFull(header_bytes, options_.idle_timeout_s, name_);
@@ -217,7 +262,10 @@ bool TcpFrameSource::Next(StreamFrame* frame) {
   return true;
 }
 
-bool TcpFrameSource::Ready() { return client_.Readable(0.0); }
+bool TcpFrameSource::Ready() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return !queue_.empty();
+}
 
 void TcpFrameSource::Reply(const LabelPacket& packet) {
   if (!options_.reply || replies_failed_) return;

@@ -9,9 +9,14 @@
 #include "framework/stream/frame_protocol.h"
 #include "framework/stream/socket.h"
 
+#include <condition_variable>
+#include <deque>
+#include <exception>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 namespace soma {
@@ -97,11 +102,19 @@ struct TcpSourceOptions {
   void Validate() const;         // ConfigError on violation
 };
 
-/// Accepts one client and reads frame packets from it (frame_protocol.h).
-/// Coordinates are millimetres.
+/// Accepts one client and reads frame packets from it (frame_protocol.h) on
+/// a reader thread, which stamps each frame's arrival when its last byte is
+/// in: a frame waiting while earlier ones are labelled counts the wait in its
+/// latency, and Ready() sees complete frames. The reader's error (malformed
+/// packet, disconnect mid-frame, silence) reaches Next() after the complete
+/// frames before it. Coordinates are millimetres.
 class TcpFrameSource : public FrameSource {
  public:
+  /// Most frames received and not yet taken by Next() (catch_up backlog).
+  static constexpr size_t kMaxBacklogFrames = 100000;
+
   explicit TcpFrameSource(TcpSourceOptions options);
+  ~TcpFrameSource() override;
 
   /// Starts listening (Open() calls it if needed); returns the bound port.
   int Listen();
@@ -122,7 +135,16 @@ class TcpFrameSource : public FrameSource {
   int64_t frames_ = 0;
   int64_t last_number_ = 0;
   bool replies_failed_ = false;  // the client stopped taking label packets
-  std::vector<uint8_t> buffer_;
+  std::vector<uint8_t> buffer_;  // reader thread only
+
+  bool ReadOne(StreamFrame* frame);  // on the reader thread
+  void ReadLoop();
+  std::thread reader_;
+  std::mutex mutex_;
+  std::condition_variable ready_;
+  std::deque<StreamFrame> queue_;  // complete frames not yet taken
+  bool ended_ = false;             // the client closed between frames
+  std::exception_ptr error_;       // the reader's error
 };
 
 /// Decoders (unknown keys are an error).

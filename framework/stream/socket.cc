@@ -78,6 +78,10 @@ void TcpSocket::Close() {
   fd_ = -1;
 }
 
+void TcpSocket::Shutdown() {
+  if (fd_ >= 0) ::shutdown(fd_, SHUT_RDWR);
+}
+
 TcpSocket TcpSocket::Listen(const std::string& host, int port) {
   const sockaddr_in addr = Address(host, port);
   TcpSocket s(::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0));

@@ -49,6 +49,8 @@ class TcpSocket {
 
   bool is_open() const { return fd_ >= 0; }
   void Close();
+  /// shutdown(SHUT_RDWR): wakes a thread blocked reading this socket.
+  void Shutdown();
 
  private:
   int fd_ = -1;

@@ -192,9 +192,14 @@ TEST(TcpFrameSource, BacklogIsVisible) {
     released.wait();
   });
   ready.wait();
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
   StreamFrame frame;
+  const double taken = SteadySeconds();
   ASSERT_TRUE(s.source.Next(&frame));
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  // Arrival is when the frame was received, not when it was taken: the
+  // 100 ms it waited count in its latency (50 ms: room for a slow reader
+  // thread on a loaded machine).
+  EXPECT_LT(frame.arrival, taken - 0.050);
   EXPECT_TRUE(s.source.Ready());  // frame 2 is waiting
   ASSERT_TRUE(s.source.Next(&frame));
   EXPECT_EQ(frame.number, 2);
