@@ -3,7 +3,11 @@
 // corrupted with OC_05_G_03_BT_50 (seed 0), with the bundled cmu41 model.
 //   BM_StreamLabel/threads:T      per-frame labels + the online tracklet vote
 //                                 (StreamLabeler), T intra-op threads;
-//   BM_StreamLabelSolve/...       the same, then stage II on the frame's
+//   BM_TcpRoundTrip               the reference client sends a frame (mm)
+//                                 over localhost TCP, the TCP source +
+//                                 StreamLabeler label it on another thread
+//                                 and reply; time = send -> labels received;
+//   BM_StreamLabelSolve/...       the same labelling, then stage II on the frame's
 //                                 labelled markers, warm-started from the
 //                                 previous frame, with a Ceres time limit
 //                                 (ms); stage I on the first 2 s of the clean
@@ -24,6 +28,7 @@
 #include "framework/solve/labelled_markers.h"
 #include "framework/solve/stage_i.h"
 #include "framework/solve/stage_ii.h"
+#include "framework/stream/frame_source.h"
 #include "framework/stream/stream_labeler.h"
 #include "framework/stream/stream_recorder.h"
 #include "framework/synth/corruption.h"
@@ -35,6 +40,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
+#include <future>
 #include <map>
 #include <vector>
 
@@ -122,6 +128,53 @@ BENCHMARK(BM_StreamLabel)
     ->ArgName("threads")
     ->Arg(1)
     ->Arg(2)
+    ->Iterations(2751)
+    ->UseManualTime()
+    ->Unit(benchmark::kMillisecond);
+
+void BM_TcpRoundTrip(benchmark::State& state) {
+  SetTorchThreads(1);
+  const Take& take = CorruptedTake();
+  TcpSourceOptions options;
+  options.port = 0;
+  TcpFrameSource source(options);
+  const int port = source.Listen();
+  std::future<void> server = std::async(std::launch::async, [&] {
+    source.Open(take.labels);
+    StreamLabeler labeler(take.model, StreamLabelerOptions{});
+    StreamFrame frame;
+    for (int64_t t = 0; source.Next(&frame); ++t) {
+      const StreamLabels out = labeler.Label(frame, 0.001, t);
+      LabelPacket reply;
+      reply.number = frame.number;
+      for (int l : out.labels) {
+        reply.label_ids.push_back(l == labeler.num_labels() ? -1 : l);
+      }
+      reply.confidences = out.confidence;
+      source.Reply(reply);
+    }
+  });
+  FrameClient client("127.0.0.1", port, 10);
+  LatencyStats ms;
+  int64_t t = 0;
+  for (auto _ : state) {
+    StreamFrame frame = take.frames[size_t(t) % take.frames.size()];
+    frame.number = t + 1;
+    for (float& x : frame.xyz) x *= 1000.0f;  // the protocol's millimetres
+    const auto start = std::chrono::steady_clock::now();
+    client.Send(frame);
+    const LabelPacket reply = client.Receive();
+    benchmark::DoNotOptimize(reply.label_ids.data());
+    const double s = Seconds(start);
+    state.SetIterationTime(s);
+    ms.Add(1e3 * s);
+    ++t;
+  }
+  client.Close();
+  server.get();
+  Report(state, ms);
+}
+BENCHMARK(BM_TcpRoundTrip)
     ->Iterations(2751)
     ->UseManualTime()
     ->Unit(benchmark::kMillisecond);
