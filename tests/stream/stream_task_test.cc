@@ -117,9 +117,21 @@ TEST(StreamTask, TcpClientDisconnectingMidFrameKeepsEveryFullFrame) {
       ++total;
     }
   }
+  // An empty frame, and one whose only point is invalid: replies with no
+  // labels and a null.
+  StreamFrame empty;
+  empty.number = kFrames + 1;
+  client->Send(empty);
+  EXPECT_TRUE(client->Receive().label_ids.empty());
+  StreamFrame invalid;
+  invalid.number = kFrames + 2;
+  invalid.Add(3, 1.f, 2.f, 3.f, -1.f);
+  client->Send(invalid);
+  EXPECT_EQ(client->Receive().label_ids, (std::vector<int32_t>{-1}));
   // Half of the next frame, then gone.
-  const std::vector<uint8_t> next =
-      EncodeFramePacket(TakeFrame(take, kFrames, &names));
+  StreamFrame half = TakeFrame(take, kFrames, &names);
+  half.number = kFrames + 3;
+  const std::vector<uint8_t> next = EncodeFramePacket(half);
   client->SendBytes(std::span<const uint8_t>(next.data(), next.size() / 2));
   client->Close();
   EXPECT_THAT(server.get(), HasSubstr("the client disconnected mid-frame"));
@@ -127,10 +139,10 @@ TEST(StreamTask, TcpClientDisconnectingMidFrameKeepsEveryFullFrame) {
 
   // Outputs: complete up to the last full frame.
   const C3dData out = ReadC3d(dir / "live_labeled.c3d");
-  EXPECT_EQ(out.num_frames, kFrames);
+  EXPECT_EQ(out.num_frames, kFrames + 2);
   EXPECT_EQ(out.labels[0], client->labels()[0]);
   EXPECT_EQ(out.units, "mm");
-  EXPECT_EQ(ReadC3d(dir / "live_per_frame.c3d").num_frames, kFrames);
+  EXPECT_EQ(ReadC3d(dir / "live_per_frame.c3d").num_frames, kFrames + 2);
   EXPECT_TRUE(fs::exists(dir / "latency.csv"));
 }
 
