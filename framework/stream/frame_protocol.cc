@@ -42,7 +42,8 @@ class Writer {
 
  private:
   void Uint(uint64_t v, int n) {
-    for (int i = 0; i < n; ++i) bytes_.push_back(uint8_t(v >> (8 * i)));
+    for (int i = 0; i < n; ++i)
+      bytes_.push_back(static_cast<uint8_t>(v >> (8 * i)));
   }
   std::vector<uint8_t> bytes_;
 };
@@ -70,12 +71,18 @@ class Reader {
     }
     pos_ += 4;
   }
-  uint16_t U16(const char* what) { return uint16_t(Uint(2, what)); }
-  uint32_t U32(const char* what) { return uint32_t(Uint(4, what)); }
-  int32_t I32(const char* what) { return int32_t(uint32_t(Uint(4, what))); }
-  int64_t I64(const char* what) { return int64_t(Uint(8, what)); }
+  uint16_t U16(const char* what) {
+    return static_cast<uint16_t>(Uint(2, what));
+  }
+  uint32_t U32(const char* what) {
+    return static_cast<uint32_t>(Uint(4, what));
+  }
+  int32_t I32(const char* what) {
+    return static_cast<int32_t>(static_cast<uint32_t>(Uint(4, what)));
+  }
+  int64_t I64(const char* what) { return static_cast<int64_t>(Uint(8, what)); }
   float F32(const char* what) {
-    const uint32_t u = uint32_t(Uint(4, what));
+    const uint32_t u = static_cast<uint32_t>(Uint(4, what));
     float v;
     std::memcpy(&v, &u, 4);
     return v;
@@ -127,10 +134,10 @@ class Reader {
     }
   }
   uint64_t Uint(int n, const char* what) {
-    Need(size_t(n), what);
+    Need(static_cast<size_t>(n), what);
     uint64_t v = 0;
     for (int i = 0; i < n; ++i) v |= uint64_t{bytes_[pos_ + i]} << (8 * i);
-    pos_ += size_t(n);
+    pos_ += static_cast<size_t>(n);
     return v;
   }
   std::span<const uint8_t> bytes_;
@@ -141,8 +148,8 @@ class Reader {
 }  // namespace
 
 bool StreamFrame::IsPresent(int i) const {
-  if (!(residuals[size_t(i)] >= 0.0f)) return false;
-  const float* p = &xyz[3 * size_t(i)];
+  if (!(residuals[static_cast<size_t>(i)] >= 0.0f)) return false;
+  const float* p = &xyz[3 * static_cast<size_t>(i)];
   if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2]))
     return false;
   return !(p[0] == 0.0f && p[1] == 0.0f && p[2] == 0.0f);
@@ -161,7 +168,7 @@ double SteadySeconds() {
 }
 
 std::vector<uint8_t> EncodeFramePacket(const StreamFrame& frame) {
-  const size_t n = size_t(frame.num_points());
+  const size_t n = static_cast<size_t>(frame.num_points());
   SOMA_CHECK(frame.xyz.size() == 3 * n && frame.residuals.size() == n)
       << "StreamFrame arrays disagree on the point count";
   Writer w(kFramePacketHeaderBytes + n * kFramePacketPointBytes);
@@ -170,7 +177,7 @@ std::vector<uint8_t> EncodeFramePacket(const StreamFrame& frame) {
   w.U16(0);
   w.I64(frame.number);
   w.F64(frame.timestamp);
-  w.U32(uint32_t(n));
+  w.U32(static_cast<uint32_t>(n));
   for (size_t i = 0; i < n; ++i) {
     w.I32(frame.track_ids[i]);
     w.F32(frame.xyz[3 * i]);
@@ -301,10 +308,10 @@ std::vector<uint8_t> EncodeHelloPacket(const std::vector<std::string>& labels) {
   w.Magic(kHelloMagic);
   w.U16(kStreamProtocolVersion);
   w.U16(0);
-  w.U32(uint32_t(labels.size()));
+  w.U32(static_cast<uint32_t>(labels.size()));
   for (const std::string& label : labels) {
     SOMA_CHECK(label.size() <= 0xffff) << "label too long";
-    w.U16(uint16_t(label.size()));
+    w.U16(static_cast<uint16_t>(label.size()));
     w.Bytes(label);
   }
   return w.Take();
@@ -340,7 +347,7 @@ std::vector<uint8_t> EncodeLabelPacket(const LabelPacket& packet) {
   w.I64(packet.number);
   w.F32(packet.latency_ms);
   w.U32(0);
-  w.U32(uint32_t(n));
+  w.U32(static_cast<uint32_t>(n));
   for (size_t i = 0; i < n; ++i) {
     w.I32(packet.label_ids[i]);
     w.F32(packet.confidences[i]);

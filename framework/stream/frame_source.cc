@@ -57,7 +57,7 @@ void C3dReplaySource::Open(const std::vector<std::string>&) {
 }
 
 double C3dReplaySource::DueTime(int64_t t) const {
-  return start_ + double(t) / (c3d_->frame_rate * options_.speed);
+  return start_ + static_cast<double>(t) / (c3d_->frame_rate * options_.speed);
 }
 
 bool C3dReplaySource::Next(StreamFrame* frame) {
@@ -74,8 +74,9 @@ bool C3dReplaySource::Next(StreamFrame* frame) {
     frame->arrival = SteadySeconds();
   }
   frame->number = c3d_->first_frame + t;
-  frame->timestamp =
-      c3d_->frame_rate > 0 ? double(t) / c3d_->frame_rate : double(t);
+  frame->timestamp = c3d_->frame_rate > 0
+                         ? static_cast<double>(t) / c3d_->frame_rate
+                         : static_cast<double>(t);
   frame->track_ids.clear();
   frame->xyz.clear();
   frame->residuals.clear();
@@ -315,8 +316,10 @@ FrameClient::FrameClient(const std::string& host, int port, double timeout_s)
   if (socket_.ReadFull(hello, timeout_s_, what) < hello.size()) {
     throw IoError(fmt::format("{}: closed before the hello packet", what));
   }
-  const uint32_t n = uint32_t(hello[8]) | uint32_t(hello[9]) << 8 |
-                     uint32_t(hello[10]) << 16 | uint32_t(hello[11]) << 24;
+  const uint32_t n = static_cast<uint32_t>(hello[8]) |
+                     static_cast<uint32_t>(hello[9]) << 8 |
+                     static_cast<uint32_t>(hello[10]) << 16 |
+                     static_cast<uint32_t>(hello[11]) << 24;
   if (n > kMaxStreamPoints) {
     throw IoError(fmt::format("{}: hello packet lists {} labels", what, n));
   }
@@ -326,7 +329,8 @@ FrameClient::FrameClient(const std::string& host, int port, double timeout_s)
       throw IoError(fmt::format("{}: hello packet truncated", what));
     }
     hello.insert(hello.end(), length, length + 2);
-    std::vector<uint8_t> text(size_t(length[0]) | size_t(length[1]) << 8);
+    std::vector<uint8_t> text(static_cast<size_t>(length[0]) |
+                              static_cast<size_t>(length[1]) << 8);
     if (socket_.ReadFull(text, timeout_s_, what) < text.size()) {
       throw IoError(fmt::format("{}: hello packet truncated", what));
     }

@@ -34,15 +34,17 @@ OnlineBodySolver::OnlineBodySolver(const BodyModel& body,
   options_.Validate();
   const LayoutMarkerVertices vertices = MarkerVertices(layout);
   distances_ = vertices.distances;
-  std::vector<bool> covered(size_t(layout.num_markers()), false);
+  std::vector<bool> covered(static_cast<size_t>(layout.num_markers()), false);
+  marker_of_.reserve(labels.size());
   for (const std::string& label : labels) {
     const int m = layout.FindLabel(CanonicalMarkerLabel(label));
     marker_of_.push_back(m);
-    if (m >= 0) covered[size_t(m)] = true;
+    if (m >= 0) covered[static_cast<size_t>(m)] = true;
   }
   const std::vector<std::string> layout_labels = layout.Labels();
   for (int m = 0; m < layout.num_markers(); ++m) {
-    if (!covered[size_t(m)]) absent_.push_back(layout_labels[size_t(m)]);
+    if (!covered[static_cast<size_t>(m)])
+      absent_.push_back(layout_labels[static_cast<size_t>(m)]);
   }
   output_.body = body.name;
   output_.joint_names = body.joint_names;
@@ -103,12 +105,15 @@ Eigen::Matrix3Xd OnlineBodySolver::Observed(const StreamFrame& frame,
   Eigen::Matrix3Xd observed =
       Eigen::Matrix3Xd::Constant(3, model_.num_markers(), std::nan(""));
   for (int i = 0; i < frame.num_points(); ++i) {
-    const int l = labels[size_t(i)];
-    if (l < 0 || l >= int(marker_of_.size()) || !frame.IsPresent(i)) continue;
-    const int m = marker_of_[size_t(l)];
+    const int l = labels[static_cast<size_t>(i)];
+    if (l < 0 || l >= static_cast<int>(marker_of_.size()) ||
+        !frame.IsPresent(i))
+      continue;
+    const int m = marker_of_[static_cast<size_t>(l)];
     if (m < 0) continue;
     for (int c = 0; c < 3; ++c) {
-      observed(c, m) = frame.xyz[3 * size_t(i) + c] * metres_per_unit;
+      observed(c, m) =
+          frame.xyz[3 * static_cast<size_t>(i) + c] * metres_per_unit;
     }
   }
   return observed;
@@ -119,7 +124,8 @@ void OnlineBodySolver::Calibrate() {
     const std::vector<int> picked =
         PickStageIFrames(calibration_, options_.solve.stagei);
     std::vector<Eigen::Matrix3Xd> frames;
-    for (int f : picked) frames.push_back(calibration_[size_t(f)]);
+    frames.reserve(picked.size());
+    for (int f : picked) frames.push_back(calibration_[static_cast<size_t>(f)]);
     const StageIResult stagei = SolveStageI(
         body_, &model_, distances_, frames, prior_, options_.solve.stagei);
     stagei_summary_ = stagei.summary;
@@ -152,7 +158,7 @@ void OnlineBodySolver::Calibrate() {
 SolveSummary OnlineBodySolver::AddFrame(const StreamFrame& frame,
                                         std::span<const int> labels,
                                         double metres_per_unit) {
-  SOMA_CHECK_EQ(labels.size(), size_t(frame.num_points()));
+  SOMA_CHECK_EQ(labels.size(), static_cast<size_t>(frame.num_points()));
   const int index = static_cast<int>(output_.summaries.size());
   Eigen::Matrix3Xd observed = Observed(frame, labels, metres_per_unit);
   SolveSummary summary;
@@ -165,7 +171,8 @@ SolveSummary OnlineBodySolver::AddFrame(const StreamFrame& frame,
     calibration_.push_back(observed);
     summary.skipped_reason = "calibrating";
     summary.message = "calibration segment (stage I)";
-    if (int(calibration_.size()) >= options_.calibration_frames) Calibrate();
+    if (static_cast<int>(calibration_.size()) >= options_.calibration_frames)
+      Calibrate();
   } else if (failed_) {
     summary.skipped_reason = "no_body";
     summary.message = "stage I failed";

@@ -75,13 +75,14 @@ std::vector<int> OnlineTrackletVoter::Update(int64_t frame_index,
     }
     auto [it, inserted] = tracks_.try_emplace(track_ids[i]);
     Track& track = it->second;
-    if (inserted) track.votes.assign(size_t(null) + 1, 0.0);
+    if (inserted) track.votes.assign(static_cast<size_t>(null) + 1, 0.0);
     track.last_seen = frame_index;
     // The label voted before this frame, for the swap test.
     const auto best_before =
         std::max_element(track.votes.begin(), track.votes.end());
     const int voted_before =
-        *best_before > 0 ? int(best_before - track.votes.begin()) : p;
+        *best_before > 0 ? static_cast<int>(best_before - track.votes.begin())
+                         : p;
     if (options_.swap_frames > 0 && p != voted_before) {
       track.streak = p == track.streak_label ? track.streak + 1 : 1;
       track.streak_label = p;
@@ -90,7 +91,7 @@ std::vector<int> OnlineTrackletVoter::Update(int64_t frame_index,
         std::fill(track.votes.begin(), track.votes.end(), 0.0);
         double weight = 0.0;
         for (int k = 0; k < track.streak - 1; ++k) weight = weight * decay_ + 1;
-        track.votes[size_t(p)] = weight;
+        track.votes[static_cast<size_t>(p)] = weight;
         track.streak = 0;
         track.streak_label = -1;
         ++num_swaps_;
@@ -100,13 +101,15 @@ std::vector<int> OnlineTrackletVoter::Update(int64_t frame_index,
       track.streak_label = -1;
     }
     for (double& v : track.votes) v *= decay_;
-    track.votes[size_t(p)] += 1.0;
+    track.votes[static_cast<size_t>(p)] += 1.0;
     int best = p;
     for (int k = 0; k <= null; ++k) {
-      if (track.votes[size_t(k)] > track.votes[size_t(best)]) best = k;
+      if (track.votes[static_cast<size_t>(k)] >
+          track.votes[static_cast<size_t>(best)])
+        best = k;
     }
     labels[i] = best;
-    strength[i] = track.votes[size_t(best)];
+    strength[i] = track.votes[static_cast<size_t>(best)];
   }
 
   // Duplicate real labels within the frame.
@@ -115,21 +118,22 @@ std::vector<int> OnlineTrackletVoter::Update(int64_t frame_index,
   std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
     return strength[a] > strength[b];
   });
-  std::vector<int> owner(size_t(null), -1);
-  std::vector<bool> contested(size_t(null), false);
+  std::vector<int> owner(static_cast<size_t>(null), -1);
+  std::vector<bool> contested(static_cast<size_t>(null), false);
   for (size_t i : order) {
     const int l = labels[i];
     if (l == null) continue;
-    if (owner[size_t(l)] < 0) {
-      owner[size_t(l)] = int(i);
+    if (owner[static_cast<size_t>(l)] < 0) {
+      owner[static_cast<size_t>(l)] = static_cast<int>(i);
     } else {
-      contested[size_t(l)] = true;
+      contested[static_cast<size_t>(l)] = true;
       labels[i] = null;
     }
   }
   if (options_.duplicates == DuplicatePolicy::kNullAll) {
     for (int l = 0; l < null; ++l) {
-      if (contested[size_t(l)]) labels[size_t(owner[size_t(l)])] = null;
+      if (contested[static_cast<size_t>(l)])
+        labels[static_cast<size_t>(owner[static_cast<size_t>(l)])] = null;
     }
   }
 

@@ -182,7 +182,7 @@ size_t TcpSocket::ReadFull(std::span<uint8_t> buffer,
       if (errno == ECONNRESET) return done;
       throw IoError(fmt::format("{}: recv: {}", what, Errno()));
     }
-    done += size_t(n);
+    done += static_cast<size_t>(n);
   }
   return done;
 }
@@ -208,7 +208,7 @@ void TcpSocket::WriteAll(std::span<const uint8_t> bytes,
       if (errno == EINTR || errno == EAGAIN) continue;
       throw IoError(fmt::format("{}: send: {}", what, Errno()));
     }
-    done += size_t(n);
+    done += static_cast<size_t>(n);
   }
 }
 

@@ -20,7 +20,7 @@ InferenceOptions ToInference(const StreamLabelerOptions& options) {
 
 }  // namespace
 
-StreamLabeler::StreamLabeler(std::shared_ptr<LabelerImpl> model,
+StreamLabeler::StreamLabeler(const std::shared_ptr<LabelerImpl>& model,
                              const StreamLabelerOptions& options)
     : labeler_(std::make_unique<FrameLabeler>(model, ToInference(options))),
       options_(options),
@@ -44,14 +44,14 @@ StreamLabels StreamLabeler::Label(const StreamFrame& frame,
   const int n = frame.num_points();
   const int null = num_labels();
   std::vector<int> present;
-  present.reserve(size_t(n));
+  present.reserve(static_cast<size_t>(n));
   for (int i = 0; i < n; ++i) {
     if (frame.IsPresent(i)) present.push_back(i);
   }
   StreamLabels out;
-  out.per_frame.assign(size_t(n), null);
-  out.labels.assign(size_t(n), null);
-  out.confidence.assign(size_t(n), 0.0f);
+  out.per_frame.assign(static_cast<size_t>(n), null);
+  out.labels.assign(static_cast<size_t>(n), null);
+  out.confidence.assign(static_cast<size_t>(n), 0.0f);
   const int p = static_cast<int>(present.size());
   std::vector<int32_t> track_ids(static_cast<size_t>(p));
   std::vector<int> predicted(static_cast<size_t>(p), null);
@@ -60,11 +60,13 @@ StreamLabels StreamLabeler::Label(const StreamFrame& frame,
     at::Tensor points = at::empty({1, p, 3}, at::kFloat);
     float* a = points.data_ptr<float>();
     for (int j = 0; j < p; ++j) {
-      const float* x = &frame.xyz[3 * size_t(present[size_t(j)])];
+      const float* x =
+          &frame.xyz[3 * static_cast<size_t>(present[static_cast<size_t>(j)])];
       for (int c = 0; c < 3; ++c) {
         a[3 * j + c] = static_cast<float>(x[c] * metres_per_unit);
       }
-      track_ids[size_t(j)] = frame.track_ids[size_t(present[size_t(j)])];
+      track_ids[static_cast<size_t>(j)] =
+          frame.track_ids[static_cast<size_t>(present[static_cast<size_t>(j)])];
     }
     Timer timer;
     const FrameLabels labels = labeler_->Label(points, frame_index);
@@ -72,8 +74,9 @@ StreamLabels StreamLabeler::Label(const StreamFrame& frame,
     const int64_t* pred = labels.predicted_ids.data_ptr<int64_t>();
     const int64_t* ids = labels.label_ids.data_ptr<int64_t>();
     for (int j = 0; j < p; ++j) {
-      predicted[size_t(j)] = static_cast<int>(pred[j]);
-      out.per_frame[size_t(present[size_t(j)])] = static_cast<int>(ids[j]);
+      predicted[static_cast<size_t>(j)] = static_cast<int>(pred[j]);
+      out.per_frame[static_cast<size_t>(present[static_cast<size_t>(j)])] =
+          static_cast<int>(ids[j]);
     }
     const at::Tensor probabilities = labels.label_confidence.contiguous();
     confidence.assign(probabilities.data_ptr<float>(),
@@ -83,16 +86,18 @@ StreamLabels StreamLabeler::Label(const StreamFrame& frame,
   if (options_.tracklets) {
     final_labels = voter_.Update(frame_index, track_ids, predicted);
   } else {
-    final_labels.resize(size_t(p));
+    final_labels.resize(static_cast<size_t>(p));
     for (int j = 0; j < p; ++j) {
-      final_labels[size_t(j)] = out.per_frame[size_t(present[size_t(j)])];
+      final_labels[static_cast<size_t>(j)] =
+          out.per_frame[static_cast<size_t>(present[static_cast<size_t>(j)])];
     }
   }
   for (int j = 0; j < p; ++j) {
-    const int i = present[size_t(j)];
-    out.labels[size_t(i)] = final_labels[size_t(j)];
-    out.confidence[size_t(i)] = confidence[size_t(j) * size_t(null + 1) +
-                                           size_t(final_labels[size_t(j)])];
+    const int i = present[static_cast<size_t>(j)];
+    out.labels[static_cast<size_t>(i)] = final_labels[static_cast<size_t>(j)];
+    out.confidence[static_cast<size_t>(i)] =
+        confidence[static_cast<size_t>(j) * static_cast<size_t>(null + 1) +
+                   static_cast<size_t>(final_labels[static_cast<size_t>(j)])];
   }
   return out;
 }

@@ -38,7 +38,7 @@ struct StreamLabels {
 
 class StreamLabeler {
  public:
-  StreamLabeler(std::shared_ptr<LabelerImpl> model,
+  StreamLabeler(const std::shared_ptr<LabelerImpl>& model,
                 const StreamLabelerOptions& options);
   ~StreamLabeler();
   StreamLabeler(StreamLabeler&&) noexcept;

@@ -20,13 +20,13 @@ LabeledC3dRecorder::LabeledC3dRecorder(std::vector<std::string> labels,
 
 void LabeledC3dRecorder::Append(const StreamFrame& frame,
                                 std::span<const int> labels) {
-  SOMA_CHECK_EQ(labels.size(), size_t(frame.num_points()));
+  SOMA_CHECK_EQ(labels.size(), static_cast<size_t>(frame.num_points()));
   if (frames_.empty()) first_number_ = frame.number;
   std::vector<Point>& points = frames_.emplace_back();
   for (int i = 0; i < frame.num_points(); ++i) {
     if (!frame.IsPresent(i)) continue;
-    const float* x = &frame.xyz[3 * size_t(i)];
-    points.push_back(Point{labels[size_t(i)], x[0], x[1], x[2]});
+    const float* x = &frame.xyz[3 * static_cast<size_t>(i)];
+    points.push_back(Point{labels[static_cast<size_t>(i)], x[0], x[1], x[2]});
   }
 }
 
@@ -56,11 +56,12 @@ C3dData LabeledC3dRecorder::Build() const {
   out.valid.setConstant(T, K, false);
   for (int t = 0; t < T; ++t) {
     int next_null = L;
-    for (const Point& p : frames_[size_t(t)]) {
+    for (const Point& p : frames_[static_cast<size_t>(t)]) {
       const int column = p.label >= 0 && p.label < L ? p.label : next_null++;
-      out.points(t, 3 * column) = p.x;
-      out.points(t, 3 * column + 1) = p.y;
-      out.points(t, 3 * column + 2) = p.z;
+      const Eigen::Index x = 3 * Eigen::Index{column};
+      out.points(t, x) = p.x;
+      out.points(t, x + 1) = p.y;
+      out.points(t, x + 2) = p.z;
       out.residuals(t, column) = 0.0f;
       out.valid(t, column) = true;
     }
@@ -77,8 +78,10 @@ void LabeledC3dRecorder::Write(const std::filesystem::path& path) const {
 double LatencyStats::Quantile(double q) const {
   if (samples_.empty()) return 0.0;
   std::vector<double> sorted = samples_;
-  const size_t rank = static_cast<size_t>(std::clamp(
-      std::ceil(q * double(sorted.size())), 1.0, double(sorted.size())));
+  const size_t rank = static_cast<size_t>(
+      std::clamp(std::ceil(q * static_cast<double>(sorted.size())),
+                 1.0,
+                 static_cast<double>(sorted.size())));
   std::nth_element(sorted.begin(), sorted.begin() + (rank - 1), sorted.end());
   return sorted[rank - 1];
 }
@@ -92,7 +95,7 @@ double LatencyStats::Mean() const {
   return samples_.empty()
              ? 0.0
              : std::accumulate(samples_.begin(), samples_.end(), 0.0) /
-                   double(samples_.size());
+                   static_cast<double>(samples_.size());
 }
 
 }  // namespace soma

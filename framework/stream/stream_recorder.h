@@ -29,7 +29,7 @@ class LabeledC3dRecorder {
   /// (StreamFrame::IsPresent false) are skipped whatever their label.
   void Append(const StreamFrame& frame, std::span<const int> labels);
 
-  int64_t num_frames() const { return int64_t(frames_.size()); }
+  int64_t num_frames() const { return static_cast<int64_t>(frames_.size()); }
   /// The C3D of the frames so far.
   C3dData Build() const;
   /// Build() + an atomic write (temp file + rename): a reader sees a
@@ -52,7 +52,7 @@ class LabeledC3dRecorder {
 class LatencyStats {
  public:
   void Add(double ms) { samples_.push_back(ms); }
-  int64_t count() const { return int64_t(samples_.size()); }
+  int64_t count() const { return static_cast<int64_t>(samples_.size()); }
   /// The q-quantile (0..1, nearest rank); 0 when empty.
   double Quantile(double q) const;
   double Max() const;

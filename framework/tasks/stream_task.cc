@@ -284,7 +284,8 @@ class StreamTask : public Task {
       }
     };
     const auto emit_dropped = [&](const StreamFrame& frame) {
-      const std::vector<int> nulls(size_t(frame.num_points()), null);
+      const std::vector<int> nulls(static_cast<size_t>(frame.num_points()),
+                                   null);
       online.Append(frame, nulls);
       per_frame.Append(frame, nulls);
       if (solver != nullptr) solver->AddFrame(frame, nulls, metres_per_unit);
@@ -368,22 +369,24 @@ class StreamTask : public Task {
     write_outputs();
     const double seconds = wall.ElapsedSeconds();
 
-    ctx.ReportMetric("frames", double(index));
-    ctx.ReportMetric("frames_labelled", double(latency.count()));
-    ctx.ReportMetric("frames_dropped", double(dropped));
-    ctx.ReportMetric("frames_late", double(late));
-    ctx.ReportMetric("frames_per_s", double(index) / std::max(seconds, 1e-9));
+    ctx.ReportMetric("frames", static_cast<double>(index));
+    ctx.ReportMetric("frames_labelled", static_cast<double>(latency.count()));
+    ctx.ReportMetric("frames_dropped", static_cast<double>(dropped));
+    ctx.ReportMetric("frames_late", static_cast<double>(late));
+    ctx.ReportMetric("frames_per_s",
+                     static_cast<double>(index) / std::max(seconds, 1e-9));
     ctx.ReportMetric("latency_p50_ms", latency.Quantile(0.5));
     ctx.ReportMetric("latency_p99_ms", latency.Quantile(0.99));
     ctx.ReportMetric("latency_max_ms", latency.Max());
     ctx.ReportMetric("label_p50_ms", forward.Quantile(0.5));
     ctx.ReportMetric("label_p99_ms", forward.Quantile(0.99));
-    ctx.ReportMetric("swaps", double(labeler.voter().num_swaps()));
+    ctx.ReportMetric("swaps", static_cast<double>(labeler.voter().num_swaps()));
     std::string body_line;
     if (solver != nullptr) {
       const double rms_mm =
-          body_solved > 0 ? 1e3 * body_rms / double(body_solved) : 0.0;
-      ctx.ReportMetric("body_frames", double(body_solved));
+          body_solved > 0 ? 1e3 * body_rms / static_cast<double>(body_solved)
+                          : 0.0;
+      ctx.ReportMetric("body_frames", static_cast<double>(body_solved));
       ctx.ReportMetric("body_mean_rms_mm", rms_mm);
       ctx.ReportMetric("solve_p50_ms", solve_times.Quantile(0.5));
       ctx.ReportMetric("solve_p99_ms", solve_times.Quantile(0.99));
@@ -469,7 +472,7 @@ class StreamTask : public Task {
         latency.count(),
         dropped,
         options_.backlog == BacklogPolicy::kDrop ? "drop" : "catch_up",
-        double(index) / std::max(seconds, 1e-9),
+        static_cast<double>(index) / std::max(seconds, 1e-9),
         seconds,
         latency.Quantile(0.5),
         latency.Quantile(0.99),

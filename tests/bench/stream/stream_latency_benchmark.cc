@@ -7,7 +7,8 @@
 //                                 over localhost TCP, the TCP source +
 //                                 StreamLabeler label it on another thread
 //                                 and reply; time = send -> labels received;
-//   BM_StreamLabelSolve/...       the same labelling, then stage II on the frame's
+//   BM_StreamLabelSolve/...       the same labelling, then stage II on the
+//   frame's
 //                                 labelled markers, warm-started from the
 //                                 previous frame, with a Ceres time limit
 //                                 (ms); stage I on the first 2 s of the clean
