@@ -18,8 +18,8 @@
 // `budget_ms` are counted late.
 //
 // Outputs in the run directory (written when the stream ends, also after an
-// error such as a client disconnecting mid-frame: complete up to the last
-// full frame, atomically):
+// error such as a client disconnecting mid-frame, and every `flush_every_s`
+// seconds if set: complete up to the last full frame, atomically):
 //  - `<stem>_labeled.c3d`: the final (online) labels, `soma label`'s layout;
 //  - `<stem>_per_frame.c3d`: the per-frame labels of the same frames;
 //  - `latency.csv`: per frame: number, points, forward ms, solve ms,
@@ -75,7 +75,8 @@ struct StreamTaskOptions {
   StreamLabelerOptions labeler;
   std::string gt;  // optional ground truth to score against
   std::string stem = "stream";
-  int threads = 1;  // intra-op threads of the labeller
+  int threads = 1;             // intra-op threads of the labeller
+  double flush_every_s = 0.0;  // > 0: rewrite the outputs this often
   // The online body (task.solve): stage I on the first frames, then stage II
   // per frame with a Ceres time limit. Body, layout, solver options and pose
   // prior come from the `body`, `layout`, `solver`, `pose_prior` groups.
@@ -158,6 +159,9 @@ StreamTaskOptions DecodeStreamTaskOptions(const ConfigNode& node) {
   }
   reader.Read("stem", &options.stem);
   reader.Read("threads", &options.threads);
+  reader.Read("flush_every_s", &options.flush_every_s);
+  reader.Check(
+      "flush_every_s", options.flush_every_s >= 0, "flush_every_s >= 0");
   if (const ConfigNode* solve = reader.Child("solve")) {
     ConfigReader sr(*solve);
     sr.Read("enabled", &options.solve);
@@ -270,7 +274,8 @@ class StreamTask : public Task {
     csv << "frame,number,points,label_ms,solve_ms,latency_ms,body_latency_ms,"
            "dropped\n";
     int64_t index = 0, dropped = 0, late = 0;
-    Timer wall, since_log;
+    Timer wall, since_log, since_flush;
+    int64_t flushes = 0;
     const auto write_outputs = [&] {
       online.Write(ctx.output_dir / (stem + "_labeled.c3d"));
       per_frame.Write(ctx.output_dir / (stem + "_per_frame.c3d"));
@@ -346,6 +351,12 @@ class StreamTask : public Task {
                            ms,
                            body_ms);
         ++index;
+        if (options_.flush_every_s > 0 &&
+            since_flush.ElapsedSeconds() >= options_.flush_every_s) {
+          write_outputs();  // complete up to this frame, atomically
+          since_flush.Restart();
+          ++flushes;
+        }
         if (since_log.ElapsedSeconds() > 10) {
           since_log.Restart();
           SOMA_LOG(INFO,
@@ -381,6 +392,7 @@ class StreamTask : public Task {
     ctx.ReportMetric("label_p50_ms", forward.Quantile(0.5));
     ctx.ReportMetric("label_p99_ms", forward.Quantile(0.99));
     ctx.ReportMetric("swaps", static_cast<double>(labeler.voter().num_swaps()));
+    ctx.ReportMetric("flushes", static_cast<double>(flushes));
     std::string body_line;
     if (solver != nullptr) {
       const double rms_mm =

@@ -146,6 +146,54 @@ TEST(StreamTask, TcpClientDisconnectingMidFrameKeepsEveryFullFrame) {
   EXPECT_TRUE(fs::exists(dir / "latency.csv"));
 }
 
+TEST(StreamTask, FlushingKeepsTheOutputsCompleteWhileStreaming) {
+  const fs::path dir = testing::CreateTestDir();
+  const C3dData take = ReadC3d(Hdm05Take());
+  const int port = FreePort();
+  ConfigNode tcp = ConfigNode::EmptyMap();
+  tcp.Set("port", port);
+  tcp.Set("accept_timeout_s", 30);
+  ConfigNode node = ConfigNode::EmptyMap();
+  node.Set("source", "tcp");
+  node.Set("tcp", tcp);
+  node.Set("checkpoint", Hdm05Model());
+  node.Set("stem", "live");
+  node.Set("flush_every_s", 1e-6);  // after every frame
+  std::unique_ptr<Task> task = BuildTask(node);
+  RunContext ctx;
+  ctx.output_dir = dir;
+  std::future<void> server = std::async(
+      std::launch::async, [&] { task->Run(ConfigNode::EmptyMap(), ctx); });
+  std::unique_ptr<FrameClient> client;
+  for (int attempt = 0; attempt < 300 && client == nullptr; ++attempt) {
+    try {
+      client = std::make_unique<FrameClient>("127.0.0.1", port, 5);
+    } catch (const IoError&) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+  }
+  ASSERT_NE(client, nullptr) << "the stream task never listened";
+  std::vector<std::string> names;
+  for (int t = 0; t < 5; ++t) {
+    client->Send(TakeFrame(take, t, &names));
+    client->Receive();
+  }
+  // The stream is still open: what a kill -9 now would leave. The flush
+  // after frame 5 follows its reply; wait for it.
+  int frames = 0;
+  for (int attempt = 0; attempt < 100 && frames < 5; ++attempt) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    if (fs::exists(dir / "live_labeled.c3d")) {
+      frames = ReadC3d(dir / "live_labeled.c3d").num_frames;
+    }
+  }
+  EXPECT_EQ(frames, 5);
+  client->Close();
+  server.get();
+  EXPECT_EQ(ReadC3d(dir / "live_labeled.c3d").num_frames, 5);
+  EXPECT_GE(ctx.metrics().at("flushes"), 5);
+}
+
 ConfigNode ReplayNode(bool realtime, double speed, const std::string& backlog) {
   ConfigNode c3d = ConfigNode::EmptyMap();
   c3d.Set("path", Hdm05Take());
