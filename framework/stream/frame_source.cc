@@ -104,6 +104,11 @@ std::string C3dReplaySource::units() const {
 
 double C3dReplaySource::frame_rate() const { return c3d_->frame_rate; }
 
+double C3dReplaySource::arrival_rate() const {
+  return options_.realtime ? c3d_->frame_rate * options_.speed
+                           : c3d_->frame_rate;
+}
+
 std::string C3dReplaySource::Describe() const {
   return fmt::format(
       "c3d {} ({})",

@@ -50,8 +50,11 @@ class FrameSource {
   virtual double metres_per_unit() const = 0;
   /// The unit string written to output C3D files ("mm", ...).
   virtual std::string units() const = 0;
-  /// Nominal capture rate, Hz.
+  /// Nominal capture rate, Hz (written to output files).
   virtual double frame_rate() const = 0;
+  /// Rate at which frames arrive, Hz (a replay at speed s: s x the capture
+  /// rate); one frame period is the default latency budget.
+  virtual double arrival_rate() const { return frame_rate(); }
   /// For messages: "c3d take.c3d (realtime)", "tcp 127.0.0.1:7301".
   virtual std::string Describe() const = 0;
 };
@@ -80,6 +83,7 @@ class C3dReplaySource : public FrameSource {
   double metres_per_unit() const override;
   std::string units() const override;
   double frame_rate() const override;
+  double arrival_rate() const override;
   std::string Describe() const override;
 
  private:

@@ -251,7 +251,7 @@ class StreamTask : public Task {
     source->Open(info.labels);
     const double budget_ms = options_.budget_ms > 0
                                  ? options_.budget_ms
-                                 : 1000.0 / source->frame_rate();
+                                 : 1000.0 / source->arrival_rate();
     const double metres_per_unit = source->metres_per_unit();
     SOMA_LOG(INFO,
              "stream: {} -> {} labels ({} path, {}), backlog {}, budget "

@@ -256,6 +256,8 @@ TEST(C3dReplaySource, RealtimeKeepsTheCaptureRate) {
   options.speed = 2.0;  // 200 Hz: 5 frames span 20 ms
   C3dReplaySource source(options);
   source.Open({});
+  EXPECT_EQ(source.frame_rate(), 100);    // written to outputs
+  EXPECT_EQ(source.arrival_rate(), 200);  // the latency budget's period
   StreamFrame frame;
   const double start = SteadySeconds();
   std::vector<double> arrivals;
