@@ -8,6 +8,7 @@
 #include "framework/motion/motion_source.h"
 #include "framework/registry/registry.h"
 #include "framework/solve/pose_prior.h"
+#include "framework/stream/frame_source.h"
 #include "framework/synth/register.h"
 #include "framework/tasks/task.h"
 #include "framework/train/register.h"
@@ -69,6 +70,7 @@ void RegisterBuiltins() {
   RegisterSynthComponents();
   RegisterModelComponents();
   RegisterTrainComponents();
+  RegisterFrameSources();
   RegisterTasks();
 }
 

@@ -7,6 +7,8 @@
 #   config    YAML loading, composition and interpolation (ParseYaml, Compose,
 #             Resolve over a small config tree), seeded with configs/**/*.yaml
 #             and tests/fuzz/corpus/config/
+#   frame_protocol  the `soma stream` frame/hello/label packet decoders,
+#             seeded with tests/fuzz/corpus/frame_protocol/
 # The growing corpus is kept in build-fuzz/<target>_corpus.
 #
 #   scripts/fuzz.sh <target> [seconds=60] [seed]
@@ -41,8 +43,12 @@ case "$target" in
     what="ParseYaml + Compose + Resolve"
     max_len=4096
     ;;
+  frame_protocol)
+    what="DecodeFramePacket + DecodeHelloPacket + DecodeLabelPacket"
+    max_len=4096
+    ;;
   *)
-    echo "usage: scripts/fuzz.sh c3d|override|config [seconds=60] [seed]" >&2
+    echo "usage: scripts/fuzz.sh c3d|override|config|frame_protocol [seconds=60] [seed]" >&2
     exit 2
     ;;
 esac

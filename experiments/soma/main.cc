@@ -38,6 +38,7 @@ int main(int argc, char** argv) {
         {"label", "input"},
         {"fit_layout", "input"},
         {"label_eval", "input"},
+        {"stream", "c3d.path"},
         {"trim", "input"},
         {"view", "input"}};
     const auto positional = kPositional.find(args.front());

@@ -76,7 +76,8 @@ FrameLabeler& FrameLabeler::operator=(FrameLabeler&&) noexcept = default;
 
 int64_t FrameLabeler::num_labels() const { return model_->num_labels(); }
 
-FrameLabels FrameLabeler::Label(const at::Tensor& points_in) const {
+FrameLabels FrameLabeler::Label(const at::Tensor& points_in,
+                                int64_t first_frame) const {
   if (points_in.dim() != 3 || points_in.size(2) != 3) {
     throw ShapeError(
         fmt::format("FrameLabeler: points must be T x P x 3, got {}",
@@ -100,8 +101,9 @@ FrameLabels FrameLabeler::Label(const at::Tensor& points_in) const {
       std::vector<int64_t> indices;
       indices.reserve(static_cast<size_t>((t1 - t0) * p));
       for (int64_t t = t0; t < t1; ++t) {
-        const std::vector<int> perm = root.Stream(static_cast<uint64_t>(t))
-                                          .Permutation(static_cast<int>(p));
+        const std::vector<int> perm =
+            root.Stream(static_cast<uint64_t>(first_frame + t))
+                .Permutation(static_cast<int>(p));
         indices.insert(indices.end(), perm.begin(), perm.end());
       }
       order = torch::tensor(indices, torch::kLong).view({t1 - t0, p});

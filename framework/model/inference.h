@@ -72,8 +72,11 @@ class FrameLabeler {
   FrameLabeler(FrameLabeler&&) noexcept;
   FrameLabeler& operator=(FrameLabeler&&) noexcept;
 
-  /// `points`: `T x P x 3` float, (0,0,0) = missing/padding.
-  FrameLabels Label(const at::Tensor& points) const;
+  /// `points`: `T x P x 3` float, (0,0,0) = missing/padding. Frame t is
+  /// permuted with Rng(seed).Stream(first_frame + t): a stream labelling one
+  /// frame per call passes the frame's index to get the permutation of an
+  /// offline call over the whole take.
+  FrameLabels Label(const at::Tensor& points, int64_t first_frame = 0) const;
 
   int64_t num_labels() const;
   bool uses_fast_path() const { return fast_ != nullptr; }

@@ -27,6 +27,7 @@ void DecodeSolver(const ConfigNode& node, SolverOptions* o) {
   r.Read("trust_region", &o->trust_region);
   r.Read("linear_solver", &o->linear_solver);
   r.Read("max_iterations", &o->max_iterations);
+  r.Read("max_solver_time_s", &o->max_solver_time_s);
   r.Read("function_tolerance", &o->function_tolerance);
   r.Read("parameter_tolerance", &o->parameter_tolerance);
   r.Read("gradient_tolerance", &o->gradient_tolerance);

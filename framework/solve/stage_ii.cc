@@ -54,6 +54,11 @@ void SolverOptions::Validate() const {
     throw InvalidOption(
         "solver.num_threads", std::to_string(num_threads), "num_threads >= 1");
   }
+  if (!(max_solver_time_s >= 0)) {
+    throw InvalidOption("solver.max_solver_time_s",
+                        std::to_string(max_solver_time_s),
+                        "max_solver_time_s >= 0");
+  }
 }
 
 void StageIIOptions::Validate() const {
@@ -105,6 +110,9 @@ ceres::Solver::Options ToCeresOptions(const SolverOptions& options) {
   ceres_options.parameter_tolerance = options.parameter_tolerance;
   ceres_options.gradient_tolerance = options.gradient_tolerance;
   ceres_options.num_threads = options.num_threads;
+  if (options.max_solver_time_s > 0) {
+    ceres_options.max_solver_time_in_seconds = options.max_solver_time_s;
+  }
   ceres_options.logging_type = ceres::SILENT;
   ceres_options.minimizer_progress_to_stdout = false;
   std::string error;

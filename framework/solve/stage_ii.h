@@ -35,6 +35,10 @@ struct SolverOptions {
   double parameter_tolerance = 1e-8;
   double gradient_tolerance = 1e-10;
   int num_threads = 1;
+  /// > 0: wall-clock limit of one Ceres solve, seconds (Ceres
+  /// max_solver_time_in_seconds; a per-frame budget for live solving: the
+  /// solve stops with NO_CONVERGENCE and its usable iterate); 0: none.
+  double max_solver_time_s = 0.0;
   void Validate() const;  // ConfigError naming the option
 };
 

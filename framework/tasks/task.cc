@@ -20,6 +20,7 @@ void RegisterNoiseBankTask(Registry<Task>& registry);
 void RegisterRealismTask(Registry<Task>& registry);
 void RegisterReproduceTask(Registry<Task>& registry);
 void RegisterSolveTask(Registry<Task>& registry);
+void RegisterStreamTask(Registry<Task>& registry);
 void RegisterSynthTask(Registry<Task>& registry);
 void RegisterTrainTask(Registry<Task>& registry);
 void RegisterTrimTask(Registry<Task>& registry);
@@ -41,6 +42,7 @@ void RegisterTasks() {
   RegisterRealismTask(registry);
   RegisterReproduceTask(registry);
   RegisterSolveTask(registry);
+  RegisterStreamTask(registry);
   RegisterSynthTask(registry);
   RegisterTrainTask(registry);
   RegisterTrimTask(registry);
