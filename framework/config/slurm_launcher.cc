@@ -462,13 +462,15 @@ std::string MakeSbatchScript(const SlurmLauncherOptions& options,
   s += " \"${overrides[@]}\" &\n";
   // scancel's SIGTERM reaches this shell: pass it on to soma and wait for its
   // own exit status. SIGUSR1 (--signal=B:USR1, or scancel --signal=USR1 -b)
-  // stops soma and, with requeue, puts the task back in the queue; its last
-  // checkpoint stays valid (atomic writes) and the next start resumes it.
-  // (Requeueing on SIGTERM would turn every scancel into a requeue.)
+  // is passed on to soma too: a training checkpoints at its next batch and
+  // stops (any other task dies of it, keeping its last checkpoint, which
+  // atomic writes keep valid); with requeue the task then goes back to the
+  // queue and the next start resumes. (Requeueing on SIGTERM would turn
+  // every scancel into a requeue.)
   s += "child=$!\n"
        "requeue=0\n"
        "trap 'kill -TERM \"$child\" 2>/dev/null' TERM INT\n"
-       "trap 'requeue=1; kill -TERM \"$child\" 2>/dev/null' USR1\n"
+       "trap 'requeue=1; kill -USR1 \"$child\" 2>/dev/null' USR1\n"
        // A trapped signal interrupts `wait` (status 128+n); wait until soma
        // has ended, then once more for its own status (bash keeps it).
        "wait \"$child\"\n"
@@ -574,7 +576,8 @@ SlurmSubmission SubmitSlurmArray(const SlurmLauncherOptions& options,
 // State
 
 std::vector<SweepJobState> QuerySweepState(const fs::path& sweep_dir,
-                                           bool record) {
+                                           bool record,
+                                           const SlurmJobEndedOk& ended_ok) {
   if (!fs::exists(sweep_dir / "jobs.yaml")) {
     throw IoError(fmt::format("'{}' is not a sweep directory (no jobs.yaml)",
                               sweep_dir.string()));
@@ -611,6 +614,18 @@ std::vector<SweepJobState> QuerySweepState(const fs::path& sweep_dir,
       if (q != queue->end()) {
         st.state = StateFromQueue(q->second.state);
         st.detail = "SLURM: " + q->second.state;
+      } else if (LedgerEntry done = entry; ended_ok && ended_ok(done)) {
+        // It finished without writing the ledger itself.
+        st.entry = done;
+        st.state = "done";
+        st.detail = "finished";
+        if (record) {
+          LedgerEntry& e = ledger.Entry(entry.num);
+          e = done;
+          e.status = JobStatus::kDone;
+          e.error.clear();
+          changed = true;
+        }
       } else {
         // SLURM is done with it but the job did not record its end.
         const std::optional<int> rc = ReadExitStatus(entry.dir);
@@ -647,7 +662,8 @@ std::vector<SweepJobState> QuerySweepState(const fs::path& sweep_dir,
 
 bool WaitForSlurmJobs(const fs::path& sweep_dir,
                       const SlurmSubmission& submission,
-                      const SlurmLauncherOptions& options) {
+                      const SlurmLauncherOptions& options,
+                      const SlurmJobEndedOk& ended_ok) {
   sigset_t signals, previous;
   sigemptyset(&signals);
   sigaddset(&signals, SIGINT);
@@ -661,7 +677,8 @@ bool WaitForSlurmJobs(const fs::path& sweep_dir,
     std::map<std::string, int> counts;
     bool unfinished = false;
     try {
-      for (const SweepJobState& st : QuerySweepState(sweep_dir, true)) {
+      for (const SweepJobState& st :
+           QuerySweepState(sweep_dir, true, ended_ok)) {
         if (!mine.count(st.entry.num)) continue;
         ++counts[st.state];
         if (st.state == "pending" || st.state == "running") unfinished = true;

@@ -12,6 +12,7 @@
 #include "framework/config/node.h"
 
 #include <filesystem>
+#include <functional>
 #include <optional>
 #include <string>
 #include <utility>
@@ -36,8 +37,9 @@ struct SlurmLauncherOptions {
   std::string constraint;        // --constraint
   int signal_delay_s = 120;      // --signal=B:USR1@N (0: none)
   /// On SIGUSR1 (the --signal above, or `scancel --signal=USR1 -b` to
-  /// preempt): stop soma and `scontrol requeue` the task (#SBATCH --requeue),
-  /// which then resumes from its checkpoint. SIGTERM (scancel) only stops.
+  /// preempt): pass it on to soma (a training checkpoints at its next batch
+  /// and stops), then `scontrol requeue` the task (#SBATCH --requeue), which
+  /// resumes from its checkpoint. SIGTERM (scancel) only stops.
   bool requeue = true;
   std::vector<std::string> setup;  // shell lines before soma
   /// Extra `#SBATCH --key=value` lines, in config order.
@@ -80,8 +82,9 @@ std::string ShellQuote(std::string_view text);
 
 /// The sbatch script of the job array: #SBATCH lines from the options, the
 /// setup lines, a `case` from SLURM_ARRAY_TASK_ID to the job's directory and
-/// command, and the wrapper that forwards SIGTERM to soma, requeues the task
-/// on SIGUSR1 (with `requeue`) and otherwise writes soma's exit status to
+/// command, and the wrapper that forwards SIGTERM and SIGUSR1 to soma,
+/// requeues the task after SIGUSR1 (with `requeue`) and otherwise writes
+/// soma's exit status to
 /// `<job dir>/slurm_exit_status`. Pure; throws nothing.
 std::string MakeSbatchScript(const SlurmLauncherOptions& options,
                              const SbatchScriptSpec& spec);
@@ -112,18 +115,28 @@ struct SweepJobState {
   std::string log;       // the job's log file
 };
 
+/// Decides whether a job that SLURM no longer lists and that did not record
+/// its end in the ledger finished after all (e.g. `soma reproduce`'s model
+/// chains, whose commands do not write the reproduction's ledger); it may
+/// fill the entry's metrics and wall time. Empty: it did not.
+using SlurmJobEndedOk = std::function<bool(LedgerEntry& entry)>;
+
 /// The ledger joined with `squeue`. With `record` (under the ledger lock), a
 /// job that SLURM no longer lists and that did not record its end is written
-/// to the ledger as failed, with the exit status its wrapper left.
+/// to the ledger as done if `ended_ok` says so, else as failed, with the exit
+/// status its wrapper left.
 std::vector<SweepJobState> QuerySweepState(
-    const std::filesystem::path& sweep_dir, bool record);
+    const std::filesystem::path& sweep_dir,
+    bool record,
+    const SlurmJobEndedOk& ended_ok = {});
 
 /// Polls until none of the submission's jobs is pending or running. SIGINT
 /// or SIGTERM cancels the array (scancel) and marks the unfinished jobs
 /// failed; returns false then, true otherwise.
 bool WaitForSlurmJobs(const std::filesystem::path& sweep_dir,
                       const SlurmSubmission& submission,
-                      const SlurmLauncherOptions& options);
+                      const SlurmLauncherOptions& options,
+                      const SlurmJobEndedOk& ended_ok = {});
 
 /// Cancels the sweep's pending and running SLURM jobs and marks them failed
 /// in the ledger; returns the job numbers cancelled.

@@ -25,6 +25,7 @@
 // ledger, and running it leaves the first one's records alone.
 #pragma once
 
+#include "framework/config/slurm_launcher.h"
 #include "framework/reproduce/ablation_spec.h"
 #include "framework/reproduce/report.h"
 
@@ -114,6 +115,23 @@ ReproductionRun RunReproduction(
     const ReproductionPlan& plan,
     const ReproductionOptions& options,
     bool progress,
+    const std::function<void()>& on_model_finished = {});
+
+/// RunReproduction on a SLURM cluster (`soma reproduce <name>
+/// hydra/launcher=slurm`): the corruptions run here first, then the models
+/// that are not done go to SLURM as one job array (task id = the model's
+/// ledger number), each task running its model's unfinished commands in
+/// order (`<plan.dir>/.slurm/models/<num>.sh`, which stops at the first
+/// failing command and names its log), with the sweep launcher's resources,
+/// preemption and requeue (`options.jobs` does not apply: SLURM schedules).
+/// With `slurm.wait` it polls until the array has ended (SIGINT cancels it)
+/// and records each model done or failed (with SLURM's stderr, which names
+/// the failing command's log) in the ledger; with `wait=false` it returns
+/// after submitting. Re-running submits only the models that are not done.
+ReproductionRun RunReproductionOnSlurm(
+    const ReproductionPlan& plan,
+    const ReproductionOptions& options,
+    const SlurmLauncherOptions& slurm,
     const std::function<void()>& on_model_finished = {});
 
 /// The wall time a reproduction has left, estimated from the models finished

@@ -21,6 +21,7 @@
 #include <fmt/ranges.h>
 
 #include <algorithm>
+#include <optional>
 #include <thread>
 
 namespace soma {
@@ -55,6 +56,14 @@ class ReproduceTask : public Task {
         LoadAblationSpec(options_.ablation, LocateDir(options_.ablations_dir));
     ReproductionOptions reproduction = options_.reproduction;
     reproduction.executable = CurrentExecutable();
+    // hydra/launcher=slurm: the models go to SLURM, each training with the
+    // array task's CPUs as its threads.
+    std::optional<SlurmLauncherOptions> slurm;
+    if (const ConfigNode* name = ctx.hydra.FindPath("launcher.name");
+        name != nullptr && name->IsString() && name->AsString() == "slurm") {
+      slurm = DecodeSlurmLauncherOptions(ctx.hydra.at("launcher"));
+      reproduction.train_threads = slurm->cpus_per_task;
+    }
     for (const std::string& v : reproduction.only_variants) {
       if (std::none_of(spec.variants.begin(),
                        spec.variants.end(),
@@ -110,9 +119,11 @@ class ReproduceTask : public Task {
       return now;
     };
     const ReproductionRun run =
-        options_.mode == "run"
-            ? RunReproduction(plan, reproduction, true, [&] { write_report(); })
-            : SummarizeLedger(plan);
+        options_.mode != "run" ? SummarizeLedger(plan)
+        : slurm                ? RunReproductionOnSlurm(
+                      plan, reproduction, *slurm, [&] { write_report(); })
+                : RunReproduction(
+                      plan, reproduction, true, [&] { write_report(); });
     const ReportContext final_context = write_report();
     SOMA_LOG(INFO,
              "reproduce {}: {} of {} models done; wrote {}/{}.md and .csv",

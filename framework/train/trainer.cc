@@ -23,10 +23,13 @@
 #include <torch/torch.h>
 
 #include <cmath>
+#include <csignal>
+#include <cstdio>
 #include <cstdlib>
 #include <limits>
 #include <mutex>
 #include <sstream>
+#include <unistd.h>
 
 namespace soma {
 namespace {
@@ -193,6 +196,46 @@ Tensors ToTensors(const LabeledFrames& frames) {
           .to(torch::kLong);
   return t;
 }
+
+// SIGUSR1 while training (SLURM's --signal=B:USR1 passed on by the launcher's
+// wrapper, or `kill -USR1`): checkpoint at the next batch boundary, then
+// die of the signal, like a kill, so that nothing records the run as ended.
+volatile std::sig_atomic_t g_usr1_received = 0;
+
+extern "C" void OnTrainUsr1(int) { g_usr1_received = 1; }
+
+/// Installs the SIGUSR1 handler for the lifetime of the object.
+class Usr1Guard {
+ public:
+  Usr1Guard() {
+    g_usr1_received = 0;
+    struct sigaction action {};
+    action.sa_handler = OnTrainUsr1;
+    sigemptyset(&action.sa_mask);
+    action.sa_flags = SA_RESTART;
+    installed_ = ::sigaction(SIGUSR1, &action, &previous_) == 0;
+  }
+  ~Usr1Guard() {
+    if (installed_) ::sigaction(SIGUSR1, &previous_, nullptr);
+  }
+  Usr1Guard(const Usr1Guard&) = delete;
+  Usr1Guard& operator=(const Usr1Guard&) = delete;
+  bool received() const { return g_usr1_received != 0; }
+  /// Restores the default action and dies of SIGUSR1 (exit status 138).
+  [[noreturn]] void Die() {
+    struct sigaction action {};
+    action.sa_handler = SIG_DFL;
+    sigemptyset(&action.sa_mask);
+    ::sigaction(SIGUSR1, &action, nullptr);
+    std::fflush(nullptr);
+    ::raise(SIGUSR1);
+    ::_exit(128 + SIGUSR1);  // not reached
+  }
+
+ private:
+  struct sigaction previous_ {};
+  bool installed_ = false;
+};
 
 std::string CsvDouble(double value) { return fmt::format("{}", value); }
 
@@ -513,6 +556,12 @@ struct Trainer::State {
   bool finished = false;
   std::string finish_reason;
   std::vector<EpochMetrics> history;
+  // A checkpoint written in the middle of an epoch (on SIGUSR1): the batches
+  // of epoch `epoch` + 1 already trained, their summed loss and training
+  // time. 0 at an epoch's end.
+  int64_t batch = 0;
+  double epoch_loss_sum = 0;
+  double epoch_train_s = 0;
 };
 
 Trainer::Trainer(TrainerOptions options,
@@ -603,6 +652,15 @@ void Trainer::Resume(const std::filesystem::path& path, State* state) {
   state->finished = info.finished;
   state->finish_reason = ReadString(archive, "meta_finish_reason", path);
   state->history = ParseMetricsCsv(info.metrics_csv);
+  // Mid-epoch keys (absent in checkpoints written at an epoch's end).
+  c10::IValue value;
+  state->batch = archive.try_read("meta_batch", value) && value.isInt()
+                     ? value.toInt()
+                     : 0;
+  state->epoch_loss_sum =
+      state->batch > 0 ? ReadDouble(archive, "meta_epoch_loss_sum", path) : 0;
+  state->epoch_train_s =
+      state->batch > 0 ? ReadDouble(archive, "meta_epoch_train_s", path) : 0;
   SetLearningRate(*optimizer_, state->lr);
 }
 
@@ -633,6 +691,11 @@ void Trainer::SaveCheckpoints(const State& state, bool is_best) {
   archive.write("meta_scheduler", c10::IValue(scheduler_->SaveState()));
   archive.write("meta_early_stopping",
                 c10::IValue(early_stopping_.SaveState()));
+  if (state.batch > 0) {
+    archive.write("meta_batch", c10::IValue(state.batch));
+    archive.write("meta_epoch_loss_sum", c10::IValue(state.epoch_loss_sum));
+    archive.write("meta_epoch_train_s", c10::IValue(state.epoch_train_s));
+  }
   {
     at::Generator generator = at::detail::getDefaultCPUGenerator();
     std::lock_guard<std::mutex> lock(generator.mutex());
@@ -737,9 +800,13 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
   if (!resume_path.empty()) {
     Resume(resume_path, &state);
     SOMA_LOG(INFO,
-             "train: resumed from {} after epoch {} (step {}, lr {})",
+             "train: resumed from {} after epoch {}{} (step {}, lr {})",
              resume_path.string(),
              state.epoch,
+             state.batch > 0 ? fmt::format(" and {} batches of epoch {}",
+                                           state.batch,
+                                           state.epoch + 1)
+                             : std::string(),
              state.step,
              state.lr);
   } else if (!options_.init_from.empty()) {
@@ -770,7 +837,7 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
   const int64_t total_steps = num_batches * options_.max_epochs;
   const int remaining = std::max(0, options_.max_epochs - state.epoch);
   ProgressBar progress(
-      remaining * frames_per_epoch,
+      remaining * frames_per_epoch - state.batch * options_.batch_size,
       ProgressBar::Options{
           .label = "train", .unit = "frames", .enabled = options_.progress});
   const Rng torch_stream = Rng(options_.seed).Stream("torch");
@@ -787,22 +854,30 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
                : "",
            at::get_num_threads());
 
+  Usr1Guard usr1;
   while (state.epoch < options_.max_epochs) {
     const int epoch = state.epoch;  // 0-based index of the epoch being run
     Timer epoch_timer;
     EpochMetrics row;
     row.epoch = epoch + 1;
     row.lr = state.lr;
-    double loss_sum = 0;
+    // A mid-epoch checkpoint resumes after its batches (their plan is a
+    // pure function of epoch and batch index).
+    const int64_t first_batch = std::min(state.batch, num_batches);
+    double loss_sum = state.epoch_loss_sum;
+    const double train_s_before = state.epoch_train_s;
+    state.batch = 0;
+    state.epoch_loss_sum = 0;
+    state.epoch_train_s = 0;
     {
-      Prefetcher prefetcher(
-          train,
-          PlanBatches(epoch, num_batches, options_.batch_size),
-          options_.prefetch);
+      std::vector<BatchRequest> plan =
+          PlanBatches(epoch, num_batches, options_.batch_size);
+      plan.erase(plan.begin(), plan.begin() + first_batch);
+      Prefetcher prefetcher(train, std::move(plan), options_.prefetch);
       LabeledFrames frames;
       const Rng epoch_stream =
           torch_stream.Stream(static_cast<uint64_t>(epoch));
-      for (int64_t b = 0; b < num_batches; ++b) {
+      for (int64_t b = first_batch; b < num_batches; ++b) {
         if (!prefetcher.Next(&frames)) {
           throw InternalError("Trainer: the prefetcher ran out of batches");
         }
@@ -857,6 +932,23 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
           callbacks_.on_batch_end(BatchEvent{
               epoch + 1, static_cast<int>(b + 1), state.step, value});
         }
+        if (usr1.received() && b + 1 < num_batches) {
+          // (After the last batch the epoch's end checkpoints anyway.)
+          state.batch = b + 1;
+          state.epoch_loss_sum = loss_sum;
+          state.epoch_train_s = train_s_before + epoch_timer.ElapsedSeconds();
+          SaveCheckpoints(state, false);
+          progress.Finish();
+          SOMA_LOG(WARNING,
+                   "train: SIGUSR1: checkpointed epoch {} after batch {}/{} "
+                   "(step {}) to {}; stopping (re-run to resume)",
+                   epoch + 1,
+                   b + 1,
+                   num_batches,
+                   state.step,
+                   last_checkpoint().string());
+          usr1.Die();
+        }
       }
       if (prefetcher.wait_seconds() > 0.05 * epoch_timer.ElapsedSeconds()) {
         SOMA_LOG(DEBUG,
@@ -865,11 +957,11 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
                  epoch + 1);
       }
     }
-    const double train_s = epoch_timer.ElapsedSeconds();
+    const double train_s = train_s_before + epoch_timer.ElapsedSeconds();
     row.step = state.step;
     row.train_loss = loss_sum / static_cast<double>(num_batches);
     row = Validate(val, row);
-    row.wall_s = epoch_timer.ElapsedSeconds();
+    row.wall_s = train_s_before + epoch_timer.ElapsedSeconds();
     row.frames_per_s = static_cast<double>(frames_per_epoch) / train_s;
 
     // End of epoch: schedule, early stopping, best, checkpoint, metrics.
@@ -903,6 +995,15 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
              row.frames_per_s,
              is_best ? " *" : "");
     if (callbacks_.on_epoch_end) callbacks_.on_epoch_end(row);
+    if (usr1.received() && !stop && state.epoch < options_.max_epochs) {
+      progress.Finish();
+      SOMA_LOG(WARNING,
+               "train: SIGUSR1: checkpointed after epoch {} to {}; stopping "
+               "(re-run to resume)",
+               state.epoch,
+               last_checkpoint().string());
+      usr1.Die();
+    }
     if (stop) {
       progress.Finish();
       return finish(TrainSummary::Termination::kEarlyStopping,

@@ -13,6 +13,7 @@
 
 #include <gtest/gtest.h>
 
+#include <csignal>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
@@ -249,11 +250,13 @@ TEST(SlurmLauncher, WrapperRequeuesOnSigusr1) {
   EXPECT_TRUE(Contains(ReadFile(sweep / "out.txt"), "requeued SLURM job 77"))
       << ReadFile(sweep / "out.txt");
 
-  // Without requeue the job just ends, stopped by SIGTERM (128 + 15).
+  // Without requeue the job just ends, stopped by the SIGUSR1 the wrapper
+  // passed on (128 + 10; a training checkpoints first).
   fs::remove(sweep / "scontrol.log");
-  EXPECT_EQ(PreemptTask(sweep, /*requeue=*/false), 143);
+  EXPECT_EQ(PreemptTask(sweep, /*requeue=*/false), 128 + SIGUSR1);
   EXPECT_FALSE(fs::exists(sweep / "scontrol.log"));
-  EXPECT_EQ(ReadFile(sweep / "1" / kExitStatusFile), "143\n");
+  EXPECT_EQ(ReadFile(sweep / "1" / kExitStatusFile),
+            std::to_string(128 + SIGUSR1) + "\n");
 }
 
 TEST(SlurmLauncher, MissingSbatchSubmitsNothing) {

@@ -15,7 +15,13 @@
 #   5. wait=true interrupted with SIGINT cancels its array;
 #   6. preemption: a checkpointing job signalled with `scancel --signal=USR1
 #      -b` is requeued, resumes from its checkpoint and ends with the metrics
-#      of an uninterrupted run.
+#      of an uninterrupted run;
+#   7. a tiny real training preempted the same way resumes from last.pt and
+#      ends with the metrics.csv of an uninterrupted run;
+#   8. `soma reproduce <spec> hydra/launcher=slurm`: the models as one array,
+#      a failing model reported with its log, the re-run submitting only it;
+#   9. reproduce with wait=false, a re-run that waits for the queued models
+#      instead of submitting them again, and a model preempted mid-training.
 #   slurm_test.sh <soma executable> <source dir>
 # Exit 77 (CTest: skipped) when not root or SLURM/munge are not installed.
 set -euo pipefail
@@ -267,5 +273,193 @@ cmp -s "$pre/0/metrics.yaml" "$work/run/straight/metrics.yaml" &&
   cmp -s "$pre/0/metrics.csv" "$work/run/straight/metrics.csv" ||
   fail "the preempted run's metrics differ from an uninterrupted run's"
 step "6. preempted at step $stopped_at, requeued, resumed: $(grep "resumed" "$pre/0/soma.log" | sed 's/.* - //'); metrics identical to an uninterrupted run ($(tr '\n' ' ' < "$pre/0/metrics.yaml"))"
+
+# --- 7. a real training preempted: checkpointed mid-epoch, requeued, resumed -
+# A tiny `soma train` (4 epochs of ~1 s) through the SLURM launcher, preempted
+# with `scancel --signal=USR1 -b` after its first epoch: the wrapper passes
+# SIGUSR1 on to soma, whose trainer checkpoints at the next batch (mid-epoch:
+# batch index, the epoch's loss sum) and stops; the wrapper requeues the task,
+# which resumes from checkpoints/last.pt. Its metrics.csv must equal an
+# uninterrupted run's in every column but the two machine-dependent ones
+# (wall_s, frames_per_s). (A signal that lands during validation checkpoints
+# at the epoch's end instead; the step says which happened.)
+tr=$work/run/train_preempt
+tr_task=(seed=0 scale=cpu train.max_epochs=4 train.train_frames=6144
+         train.val_frames=256 train.batch_size=32 model.d_model=10 model.hidden=16
+         model.backbone.num_layers=1 threads=1 train.progress=false)
+"$soma" train -m "${tr_task[@]}" hydra/launcher=slurm hydra.launcher.wait=false \
+  hydra.sweep.dir="$tr" >/dev/null 2>tr_submit.txt ||
+  { cat tr_submit.txt; fail "submitting the training to preempt"; }
+array=$(sed -n "s/.*array_job_id: *'\{0,1\}\([0-9]*\).*/\1/p" "$tr/.slurm/submissions.yaml" | tail -1)
+[[ -n $array ]] || fail "no array job id for the training"
+epochs_done() { tail -n +2 "$tr/0/metrics.csv" 2>/dev/null | wc -l; }
+for _ in $(seq 600); do
+  (( $(epochs_done) >= 1 )) && break
+  sleep 0.1
+done
+(( $(epochs_done) >= 1 && $(epochs_done) < 4 )) ||
+  fail "the training was not between epochs 1 and 4 ($(epochs_done) epochs done)"
+scancel --signal=USR1 -b "${array}_0"
+for _ in $(seq 100); do
+  squeue -h -r -o '%F_%K %T' | grep -q "^${array}_0 PENDING" && break
+  sleep 0.2
+done
+squeue -h -r -o '%F_%K %T' | grep -q "^${array}_0 PENDING" ||
+  fail "the preempted training was not requeued: $(squeue -h -r -o '%F_%K %T')"
+stopped_epochs=$(epochs_done)
+for _ in $(seq 600); do
+  grep -q "^0,done" "$tr/jobs.csv" 2>/dev/null && break
+  grep -q "^0,failed" "$tr/jobs.csv" 2>/dev/null && break
+  sleep 0.2
+done
+[[ $(cut -d, -f1-3 "$tr/jobs.csv" | tail -1) == "0,done,2" ]] ||
+  fail "the requeued training: $(cut -d, -f1-3 "$tr/jobs.csv" | tail -1), not 0,done,2"
+grep -q "train: SIGUSR1: checkpointed" "$tr/0/soma.log" ||
+  fail "the training did not checkpoint on SIGUSR1"
+resumed=$(grep -o "train: resumed from .* after epoch [0-9]*[a-z0-9 ]*" "$tr/0/soma.log" |
+          sed 's/.* after //') ||
+  fail "the requeued training did not resume from its checkpoint"
+[[ $resumed =~ ^epoch\ [123]( |$) ]] || fail "resumed after '$resumed', not in epochs 1-3"
+grep -q "requeued SLURM job" "$tr"/0/slurm-*_0.err || fail "no requeue message for the training"
+"$soma" train "${tr_task[@]}" hydra.run.dir="$work/run/train_straight" \
+  >train_straight.txt 2>&1 || { cat train_straight.txt; fail "the uninterrupted training"; }
+cut -d, -f1-9 "$tr/0/metrics.csv" > tr_preempted.csv
+cut -d, -f1-9 "$work/run/train_straight/metrics.csv" > tr_straight.csv
+[[ $(wc -l < tr_straight.csv) == 5 ]] || fail "the uninterrupted training has not 4 epochs"
+# Numerically: every value of the 9 deterministic columns, all 4 epochs.
+max_diff=$(paste -d, tr_preempted.csv tr_straight.csv | tail -n +2 | awk -F, '
+  NF != 18 { print "columns"; exit }
+  { for (i = 1; i <= 9; ++i) { d = $i - $(i + 9); if (d < 0) d = -d; if (d > m) m = d } }
+  END { if (NR != 4) print "rows " NR; else printf "%g\n", m }')
+[[ $max_diff == 0 ]] ||
+  { paste -d'\n' tr_preempted.csv tr_straight.csv >&2;
+    fail "the preempted training's metrics.csv differs from an uninterrupted run's (max |diff| $max_diff)"; }
+step "7. training preempted after $stopped_epochs epoch(s): $(grep -o 'SIGUSR1: checkpointed [a-z0-9/ ]*[a-z0-9]' "$tr/0/soma.log"); requeued, resumed after ${resumed% }; metrics.csv (4 epochs x 9 columns) equal to an uninterrupted run's (max |diff| $max_diff; last row $(tail -1 tr_straight.csv | cut -d, -f1-5))"
+
+# --- 8. soma reproduce <name> hydra/launcher=slurm --------------------------
+# A 3-model spec with tiny models on a 120-frame cut of a real HDM05 take:
+# the corruption runs here, the models go to SLURM as one array (each task
+# runs its model's train, label and eval), the table is written here. The
+# third variant's training is refused (batch larger than an epoch): it fails
+# with its log, the others finish; the same command again submits only it.
+rp=$work/run/repro
+shared=${SOMA_SHARED_DATA:-$source/../shared/data}
+take=$shared/c3d/HDM_mm_01-02_03_120.c3d
+[[ -f $take ]] || fail "no $take for the reproduction (set SOMA_SHARED_DATA)"
+mkdir -p "$rp/ablations" "$rp/data/c3d"
+"$soma" trim task.input="$take" task.frames=120 hydra.run.dir="$rp/trim" >trim.txt 2>&1 ||
+  { cat trim.txt; fail "soma trim"; }
+cp "$rp"/trim/*.c3d "$rp/data/c3d/short.c3d"
+cat > "$rp/ablations/mini.yaml" <<'EOF'
+name: mini
+title: "Mini reproduction on SLURM"
+seeds: 1
+tests:
+  short: {label: "HDM05 cut", take: c3d/short.c3d, setting: OC_05_G_03_BT_00}
+variants:
+  - {name: base, label: "Base"}
+  - {name: lsm, label: "Log-Softmax", overrides: [normalization=log_softmax]}
+  - {name: broken, label: "Broken", overrides: [train.batch_size=4096]}
+claims:
+  - {text: "Sinkhorn beats Log-Softmax", test: short, better: base, worse: lsm}
+differences: ["tiny models"]
+EOF
+repro_args=(reproduce mini task.ablations_dir="$rp/ablations" task.root="$rp/root"
+            task.results_dir="$rp/results" task.data_dir="$rp/data"
+            'task.budget=["scale=cpu","train.max_epochs=1","train.train_frames=64","train.val_frames=32","train.batch_size=32","model.d_model=10","model.hidden=16","model.backbone.num_layers=1"]'
+            hydra/launcher=slurm hydra.launcher.poll_interval_s=0.5
+            hydra.launcher.cpus_per_task=1)
+start=$SECONDS
+set +e
+"$soma" "${repro_args[@]}" hydra.run.dir="$rp/run1" >repro1.txt 2>&1
+rc=$?
+set -e
+repro1_s=$(( SECONDS - start ))
+[[ $rc -eq 1 ]] || { cat repro1.txt; fail "reproduce with a failing model exited $rc, not 1"; }
+grep -q "submitted SLURM array job [0-9]* (3 models: 0-2)" repro1.txt ||
+  { cat repro1.txt; fail "the reproduction did not submit its 3 models as one array"; }
+ledger=$(ls -d "$rp"/root/mini-*)
+repro_status() { cut -d, -f1-3 "$ledger/jobs.csv" | tail -n +2 | tr '\n' ' '; }
+[[ $(repro_status) == "0,done,1 1,done,1 2,failed,1 " ]] ||
+  { cat repro1.txt; fail "reproduction ledger: $(repro_status)"; }
+grep -q "broken seed 0: train broken seed 0 failed: .*batch_size.*(log: .*/stdout.txt); the job exited with status 1; see .*/slurm-[0-9]*_2.err" repro1.txt ||
+  { cat repro1.txt; fail "the failed model is not reported with its command, log and SLURM stderr"; }
+err2=$(ls "$ledger"/.slurm/tasks/2/slurm-*_2.err)
+grep -q "train broken seed 0 failed: .*batch_size.*(log: .*/stdout.txt)" "$err2" ||
+  { cat "$err2"; fail "the failed model's stderr does not name the command, error and log"; }
+md=$rp/results/mini.md
+grep -q "| Base | HDM05 cut | " "$md" && grep -q "| Log-Softmax | HDM05 cut | " "$md" ||
+  { cat "$md"; fail "the table lacks the models trained on SLURM"; }
+for n in 0 1; do
+  dir=$(readlink -f "$ledger/.slurm/tasks/$n")
+  [[ $(cat "$dir/slurm_exit_status") == 0 ]] || fail "model $n: exit status $(cat "$dir/slurm_exit_status")"
+  grep -q "node: localhost" "$dir/.hydra/hydra.yaml" ||
+    fail "model $n's training provenance has no SLURM node"
+  ls "$dir"/tests/*/eval/metrics.yaml >/dev/null || fail "model $n was not evaluated"
+done
+stamp=$(stat -c %Y.%s "$(readlink -f "$ledger/.slurm/tasks/0")/metrics.yaml")
+step "8. reproduce on SLURM in ${repro1_s}s: $(repro_status); $(grep -o 'SLURM array [0-9]* ended .*' repro1.txt)"
+start=$SECONDS
+set +e
+"$soma" "${repro_args[@]}" hydra.run.dir="$rp/run2" >repro2.txt 2>&1
+rc=$?
+set -e
+[[ $rc -eq 1 ]] || { cat repro2.txt; fail "the reproduction's re-run exited $rc"; }
+grep -q "submitted SLURM array job [0-9]* (1 models: 2)" repro2.txt ||
+  { cat repro2.txt; fail "the re-run did not submit only the failed model"; }
+[[ $(repro_status) == "0,done,1 1,done,1 2,failed,2 " ]] ||
+  fail "reproduction ledger after the re-run: $(repro_status)"
+[[ $(stat -c %Y.%s "$(readlink -f "$ledger/.slurm/tasks/0")/metrics.yaml") == "$stamp" ]] ||
+  fail "the re-run retrained model 0"
+step "8. re-run in $(( SECONDS - start ))s submitted only the failed model: $(repro_status)"
+
+# --- 9. reproduce: wait=false, a re-run that waits, a model preempted -------
+# The two good variants with 4-epoch trainings, submitted with wait=false; the
+# same command with wait=true does not submit them again but waits for them;
+# meanwhile model 0 is preempted after its first epoch (the chain script
+# passes the wrapper's SIGUSR1 on to the training, which checkpoints and
+# stops), requeued and resumed from last.pt; both models end done and the table has both rows.
+long_repro=(reproduce mini task.ablations_dir="$rp/ablations" task.root="$rp/root_long"
+            task.results_dir="$rp/results_long" task.data_dir="$rp/data"
+            hydra/launcher=slurm hydra.launcher.poll_interval_s=0.5
+            hydra.launcher.cpus_per_task=1 'task.variants=[base,lsm]'
+            'task.budget=["scale=cpu","train.max_epochs=4","train.train_frames=3072","train.val_frames=256","train.batch_size=32","model.d_model=10","model.hidden=16","model.backbone.num_layers=1","train.progress=false"]')
+start=$SECONDS
+"$soma" "${long_repro[@]}" hydra.launcher.wait=false hydra.run.dir="$rp/run3" >repro3.txt 2>&1 ||
+  { cat repro3.txt; fail "reproduce with wait=false"; }
+(( SECONDS - start < 10 )) || fail "reproduce wait=false took $(( SECONDS - start )) s"
+grep -q "submitted SLURM array job [0-9]* (2 models: 0-1)" repro3.txt ||
+  { cat repro3.txt; fail "reproduce wait=false did not submit the 2 models"; }
+"$soma" "${long_repro[@]}" hydra.run.dir="$rp/run4" >repro4.txt 2>&1 &
+waiter=$!
+long_ledger=$(ls -d "$rp"/root_long/mini-*)
+m0=$(readlink -f "$long_ledger/.slurm/tasks/0")
+for _ in $(seq 600); do
+  (( $(tail -n +2 "$m0/metrics.csv" 2>/dev/null | wc -l) >= 1 )) && break
+  sleep 0.1
+done
+(( $(tail -n +2 "$m0/metrics.csv" | wc -l) < 4 )) || fail "model 0 finished before it was preempted"
+array=$(sed -n "s/.*array_job_id: *'\{0,1\}\([0-9]*\).*/\1/p" "$long_ledger/.slurm/submissions.yaml" | tail -1)
+scancel --signal=USR1 -b "${array}_0"
+set +e
+wait "$waiter"
+rc=$?
+set -e
+[[ $rc -eq 0 ]] || { cat repro4.txt; fail "the waiting re-run exited $rc"; }
+grep -q "models 0-1 are still in SLURM's queue from an earlier submission" repro4.txt ||
+  { cat repro4.txt; fail "the waiting re-run did not recognise the queued models"; }
+! grep -q "submitted SLURM array" repro4.txt || fail "the waiting re-run submitted again"
+grep -q "requeued SLURM job" "$m0"/slurm-*_0.err || fail "model 0 was not requeued"
+grep -q "train base seed 0 stopped by signal 10" "$m0"/slurm-*_0.err ||
+  fail "model 0's chain did not pass SIGUSR1 on to its training"
+grep -q "train: SIGUSR1: checkpointed" "$m0/soma.log" ||
+  fail "model 0's training did not checkpoint on SIGUSR1"
+resumed=$(grep -o "train: resumed from .* after epoch [0-9]*[a-z0-9 ]*[a-z0-9]" "$m0/soma.log" | sed 's/.* after //') ||
+  fail "model 0's training did not resume from its checkpoint"
+[[ $(cut -d, -f1-2 "$long_ledger/jobs.csv" | tail -n +2 | tr '\n' ' ') == "0,done 1,done 2,pending " ]] ||
+  fail "ledger after the preempted reproduction: $(cut -d, -f1-3 "$long_ledger/jobs.csv")"
+grep -q "| Base | HDM05 cut | " "$rp/results_long/mini.md" ||
+  fail "the table lacks the preempted model"
+step "9. reproduce wait=false + waiting re-run, model 0 preempted and resumed after $resumed: done in $(( SECONDS - start ))s"
 
 echo "slurm_test: ok (${SECONDS}s)"

@@ -22,6 +22,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <csignal>
 #include <fstream>
 #include <sstream>
 #include <string>
@@ -276,6 +277,45 @@ TEST_F(TrainerTest, CrashMidEpochLosesOnlyThatEpoch) {
   const TrainSummary done = again->Train(*train_, *val_);
   EXPECT_EQ(done.start_epoch, 3);
   EXPECT_EQ(done.history.size(), 3u);
+}
+
+TEST_F(TrainerTest, Sigusr1CheckpointsMidEpochAndResumesExactly) {
+  // The preemption signal of the SLURM launcher (issue #24): SIGUSR1 makes
+  // the trainer checkpoint at the next batch, in the middle of an epoch,
+  // and die of the signal; the resumed run ends like an uninterrupted one.
+  const auto full = root_ / "full";
+  auto reference = MakeTrainer(Options(3), full);
+  reference->Train(*train_, *val_);
+
+  const auto dir = root_ / "preempted";
+  // "fast": the forked child writes into this test's directory.
+  GTEST_FLAG_SET(death_test_style, "fast");
+  EXPECT_EXIT(
+      {
+        auto preempted = MakeTrainer(Options(3), dir);
+        preempted->set_callbacks(
+            Trainer::Callbacks{.on_batch_end =
+                                   [](const Trainer::BatchEvent& e) {
+                                     if (e.epoch == 2 && e.batch == 2)
+                                       ::raise(SIGUSR1);
+                                   },
+                               .on_epoch_end = nullptr});
+        preempted->Train(*train_, *val_);
+        std::exit(0);  // not reached: the signal ends the process
+      },
+      ::testing::KilledBySignal(SIGUSR1),
+      "SIGUSR1: checkpointed epoch 2 after batch 2/4");
+  // 4 batches per epoch: epoch 1 and 2 batches of epoch 2.
+  const CheckpointInfo info = ReadCheckpointInfo(dir / "checkpoints/last.pt");
+  EXPECT_EQ(info.epoch, 1);
+  EXPECT_EQ(info.step, 6);
+  auto resumed = MakeTrainer(Options(3), dir);
+  const TrainSummary summary = resumed->Train(*train_, *val_);
+  EXPECT_EQ(summary.start_epoch, 1);
+  EXPECT_EQ(summary.epochs_completed, 3);
+  EXPECT_EQ(DeterministicColumns(full / "metrics.csv"),
+            DeterministicColumns(dir / "metrics.csv"));
+  ExpectSameWeights(reference->model(), resumed->model());
 }
 
 TEST_F(TrainerTest, NonFiniteLossStopsWithEpochStepBatch) {
