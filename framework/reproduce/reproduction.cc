@@ -195,11 +195,58 @@ std::string ChainFailure(const PlannedModel& model) {
   return found;
 }
 
-/// The bash script an array task of RunReproductionOnSlurm runs: the model's
-/// commands in order, each skipped when done, started like RunReproduction
-/// starts them (run dir prepared, output to stdout.txt); SIGTERM and SIGUSR1
-/// are passed on to the running command; the first failure ends the script with
-/// its exit status and a line naming the command and its log.
+bool Selected(const PlannedModel& model, const ReproductionOptions& options) {
+  const auto& only = options.only_variants;
+  return only.empty() ||
+         std::find(only.begin(), only.end(), model.variant) != only.end();
+}
+
+/// Submits `todo`'s models as one job array (see RunReproductionOnSlurm) and
+/// marks them pending in the ledger.
+SlurmSubmission SubmitModels(const ReproductionPlan& plan,
+                             const std::vector<size_t>& todo,
+                             const SlurmLauncherOptions& slurm) {
+  const fs::path chains = plan.dir / ".slurm" / "models";
+  CreateDirectories(chains);
+  SbatchScriptSpec spec;
+  spec.sweep_dir = fs::absolute(plan.dir).lexically_normal();
+  spec.job_name = "soma-" + spec.sweep_dir.filename().string();
+  spec.workdir = fs::current_path();
+  spec.executable = "bash";
+  for (size_t i : todo) {
+    const PlannedModel& m = plan.models[i];
+    const fs::path chain =
+        fs::absolute(chains / fmt::format("{}.sh", i)).lexically_normal();
+    WriteFileAtomic(chain, ModelChainScript(m));
+    spec.tasks.push_back({static_cast<int>(i),
+                          fs::absolute(m.dir).lexically_normal(),
+                          {chain.string()}});
+  }
+  // Throws with sbatch's message; the ledger is untouched then.
+  const SlurmSubmission submission = SubmitSlurmArray(slurm, spec);
+  {
+    LedgerLock lock(plan.dir);
+    Ledger ledger = Ledger::Load(plan.dir);
+    for (size_t i : todo) {
+      LedgerEntry& entry = ledger.Entry(static_cast<int>(i));
+      entry.status = JobStatus::kPending;
+      entry.error.clear();
+      ++entry.attempts;
+    }
+    ledger.Save();
+  }
+  SOMA_LOG(INFO,
+           "reproduce: submitted SLURM array job {} ({} models: {}); script "
+           "{}",
+           submission.array_job_id,
+           todo.size(),
+           ArrayIndexList(submission.nums),
+           submission.script);
+  return submission;
+}
+
+}  // namespace
+
 std::string ModelChainScript(const PlannedModel& model) {
   std::string s =
       "#!/bin/bash\n"
@@ -261,58 +308,6 @@ std::string ModelChainScript(const PlannedModel& model) {
   }
   return s;
 }
-
-bool Selected(const PlannedModel& model, const ReproductionOptions& options) {
-  const auto& only = options.only_variants;
-  return only.empty() ||
-         std::find(only.begin(), only.end(), model.variant) != only.end();
-}
-
-/// Submits `todo`'s models as one job array (see RunReproductionOnSlurm) and
-/// marks them pending in the ledger.
-SlurmSubmission SubmitModels(const ReproductionPlan& plan,
-                             const std::vector<size_t>& todo,
-                             const SlurmLauncherOptions& slurm) {
-  const fs::path chains = plan.dir / ".slurm" / "models";
-  CreateDirectories(chains);
-  SbatchScriptSpec spec;
-  spec.sweep_dir = fs::absolute(plan.dir).lexically_normal();
-  spec.job_name = "soma-" + spec.sweep_dir.filename().string();
-  spec.workdir = fs::current_path();
-  spec.executable = "bash";
-  for (size_t i : todo) {
-    const PlannedModel& m = plan.models[i];
-    const fs::path chain =
-        fs::absolute(chains / fmt::format("{}.sh", i)).lexically_normal();
-    WriteFileAtomic(chain, ModelChainScript(m));
-    spec.tasks.push_back({static_cast<int>(i),
-                          fs::absolute(m.dir).lexically_normal(),
-                          {chain.string()}});
-  }
-  // Throws with sbatch's message; the ledger is untouched then.
-  const SlurmSubmission submission = SubmitSlurmArray(slurm, spec);
-  {
-    LedgerLock lock(plan.dir);
-    Ledger ledger = Ledger::Load(plan.dir);
-    for (size_t i : todo) {
-      LedgerEntry& entry = ledger.Entry(static_cast<int>(i));
-      entry.status = JobStatus::kPending;
-      entry.error.clear();
-      ++entry.attempts;
-    }
-    ledger.Save();
-  }
-  SOMA_LOG(INFO,
-           "reproduce: submitted SLURM array job {} ({} models: {}); script "
-           "{}",
-           submission.array_job_id,
-           todo.size(),
-           ArrayIndexList(submission.nums),
-           submission.script);
-  return submission;
-}
-
-}  // namespace
 
 bool PlannedCommand::Done() const { return RunDirDone(run_dir); }
 

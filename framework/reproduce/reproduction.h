@@ -134,6 +134,16 @@ ReproductionRun RunReproductionOnSlurm(
     const SlurmLauncherOptions& slurm,
     const std::function<void()>& on_model_finished = {});
 
+/// The bash script one SLURM array task of RunReproductionOnSlurm runs for
+/// `model`: its commands in order, each skipped when its run directory is
+/// done, started as RunReproduction starts them (stale metrics.yaml and
+/// error.txt removed, output to `<run dir>/stdout.txt`); SIGTERM and SIGUSR1
+/// are passed on to the running command; the first failing command ends the
+/// script with its exit status and a line on stderr naming the command, its
+/// error and its log; each run appends its wall time to
+/// `<model dir>/slurm_wall_s`.
+std::string ModelChainScript(const PlannedModel& model);
+
 /// The wall time a reproduction has left, estimated from the models finished
 /// so far: with the median of their times as every model's time, each of the
 /// `jobs` slots first finishes its running model (the median less the time

@@ -13,6 +13,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <sstream>
 #include <sys/stat.h>
@@ -464,6 +465,93 @@ TEST(TrainingCurves, OneRowPerEpochOfEveryStartedModel) {
             "base,1,2,2.0,1.5,0.60,0.55\n");
   WriteFileAtomic(a.dir / "metrics.csv", "epoch,loss\n1,2\n");
   EXPECT_THROW(WriteTrainingCurvesCsv(plan, dir / "curves.csv"), IoError);
+}
+
+/// A command of a chain-script model: `bash -c SCRIPT` in `run_dir`.
+PlannedCommand BashCommand(const std::string& name,
+                           const fs::path& run_dir,
+                           const std::string& script) {
+  PlannedCommand c;
+  c.name = name;
+  c.run_dir = run_dir;
+  c.argv = {"bash", "-c", script};
+  return c;
+}
+
+/// Runs `script` with bash in `dir` (stdout/stderr to out.txt/err.txt);
+/// returns its exit status.
+int RunChain(const fs::path& dir, const std::string& script) {
+  WriteFileAtomic(dir / "chain.sh", script);
+  const std::string command = "cd '" + dir.string() +
+                              "' && bash chain.sh >out.txt 2>err.txt; echo "
+                              "$? > rc.txt";
+  if (std::system(command.c_str()) != 0) return -1;
+  return std::stoi(ReadFile(dir / "rc.txt"));
+}
+
+TEST(ModelChainScript, RunsUnfinishedCommandsInOrderAndStopsAtAFailure) {
+  const fs::path dir = testing::CreateTestDir();
+  PlannedModel model;
+  model.dir = dir / "model";
+  // Done already: skipped. Then one that succeeds, one that fails with an
+  // error.txt, and one that must not run.
+  fs::create_directories(dir / "model");
+  WriteFileAtomic(dir / "model/metrics.yaml", "epochs: 1\n");
+  model.commands = {
+      BashCommand("train", dir / "model", "touch '" + dir.string() + "/ran0'"),
+      BashCommand("label",
+                  dir / "label",
+                  "echo labelled; echo 'a: 1' > " +
+                      (dir / "label/metrics.yaml").string()),
+      BashCommand("eval",
+                  dir / "eval",
+                  "echo 'Bad input: x' > " + (dir / "eval/error.txt").string() +
+                      "; exit 3"),
+      BashCommand("never", dir / "never", "touch '" + dir.string() + "/ran3'")};
+  EXPECT_EQ(RunChain(dir, ModelChainScript(model)), 3);
+  EXPECT_FALSE(fs::exists(dir / "ran0"));
+  EXPECT_EQ(ReadFile(dir / "label/stdout.txt"), "labelled\n");
+  EXPECT_FALSE(fs::exists(dir / "ran3"));
+  const std::string err = ReadFile(dir / "err.txt");
+  EXPECT_THAT(err,
+              HasSubstr("soma reproduce: eval failed: Bad input: x (log: " +
+                        (dir / "eval/stdout.txt").string() + ")"));
+  // One wall-time line per run.
+  const std::string wall = ReadFile(dir / "model/slurm_wall_s");
+  EXPECT_EQ(std::count(wall.begin(), wall.end(), '\n'), 1) << wall;
+
+  // A command that exits 0 without metrics.yaml failed too; a re-run skips
+  // the finished label command and removes the failed one's error.txt.
+  model.commands[2] = BashCommand("eval", dir / "eval", "exit 0");
+  EXPECT_EQ(RunChain(dir, ModelChainScript(model)), 1);
+  EXPECT_FALSE(fs::exists(dir / "eval/error.txt"));
+  EXPECT_THAT(ReadFile(dir / "err.txt"),
+              HasSubstr("soma reproduce: eval failed: exit code 0"));
+  EXPECT_THAT(ReadFile(dir / "out.txt"),
+              HasSubstr("soma reproduce: label: done already"));
+}
+
+TEST(ModelChainScript, PassesSigusr1OnToTheRunningCommand) {
+  const fs::path dir = testing::CreateTestDir();
+  PlannedModel model;
+  model.dir = dir / "model";
+  model.commands = {
+      BashCommand("train",
+                  dir / "model",
+                  "trap 'echo got USR1 > " + (dir / "usr1.txt").string() +
+                      "; exit 138' USR1; touch " + (dir / "started").string() +
+                      "; for i in $(seq 100); do sleep 0.1; done")};
+  WriteFileAtomic(dir / "chain.sh", ModelChainScript(model));
+  const std::string command =
+      "cd '" + dir.string() +
+      "' && (bash chain.sh >out.txt 2>err.txt & p=$!; for i in $(seq 100); do "
+      "[ -f started ] && break; sleep 0.1; done; kill -USR1 $p; wait $p; echo "
+      "$? > rc.txt)";
+  ASSERT_EQ(std::system(command.c_str()), 0);
+  EXPECT_EQ(ReadFile(dir / "rc.txt"), "138\n");
+  EXPECT_EQ(ReadFile(dir / "usr1.txt"), "got USR1\n");
+  EXPECT_THAT(ReadFile(dir / "err.txt"),
+              HasSubstr("soma reproduce: train stopped by signal 10"));
 }
 
 }  // namespace
