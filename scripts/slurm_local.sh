@@ -116,6 +116,14 @@ NodeName=localhost NodeAddr=127.0.0.1 $node_hw State=UNKNOWN
 PartitionName=debug Nodes=localhost Default=YES MaxTime=INFINITE State=UP
 EOF
 
+# slurmd (22.05) initialises a cgroup plugin even with proctrack/linuxproc and
+# task/none; its default (autodetect) fails where no cgroup file system is
+# mounted (a chroot, e.g. ../shared/tools/fresh-machine.sh: "No filesystem
+# mounted on /sys/fs/cgroup"). Naming cgroup/v1 skips the detection; nothing
+# here uses cgroups.
+cat > "$dir/cgroup.conf" <<EOF
+CgroupPlugin=cgroup/v1
+EOF
 export SLURM_CONF=$conf
 slurmctld -D -i -f "$conf" > "$dir/log/slurmctld.out" 2>&1 &
 echo $! > "$dir/slurmctld.pid"
