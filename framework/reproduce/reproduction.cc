@@ -245,6 +245,28 @@ SlurmSubmission SubmitModels(const ReproductionPlan& plan,
   return submission;
 }
 
+/// Brings model `num`'s ledger entry up to date with its plan (a new budget
+/// resets it) and, if the model finished, marks it `done` with its metrics.
+/// Returns whether it is done; the status of an unfinished model is left to
+/// the caller.
+bool SyncLedgerEntry(const PlannedModel& m, int num, Ledger& ledger) {
+  LedgerEntry& entry = ledger.Entry(num);
+  if (entry.config_hash != m.LedgerKey()) {
+    entry = LedgerEntry{};
+    entry.num = num;
+  }
+  entry.overrides = m.train_overrides;
+  entry.config_hash = m.LedgerKey();
+  entry.dir = m.dir.string();
+  if (m.Done()) {
+    entry.status = JobStatus::kDone;
+    entry.error.clear();
+    entry.metrics = ModelMetrics(m);
+    return true;
+  }
+  return false;
+}
+
 }  // namespace
 
 std::string ModelChainScript(const PlannedModel& model) {
@@ -528,21 +550,10 @@ ReproductionRun RunReproduction(
   std::deque<size_t> queue;
   for (size_t i = 0; i < plan.models.size(); ++i) {
     const PlannedModel& m = plan.models[i];
-    LedgerEntry& entry = ledger.Entry(static_cast<int>(i));
-    if (entry.config_hash != m.LedgerKey()) {
-      entry = LedgerEntry{};
-      entry.num = static_cast<int>(i);
-    }
-    entry.overrides = m.train_overrides;
-    entry.config_hash = m.LedgerKey();
-    entry.dir = m.dir.string();
-    if (m.Done()) {
-      entry.status = JobStatus::kDone;
-      entry.error.clear();
-      entry.metrics = ModelMetrics(m);
+    if (SyncLedgerEntry(m, static_cast<int>(i), ledger)) {
       ++run.models_done;
     } else {
-      entry.status = JobStatus::kPending;
+      ledger.Entry(static_cast<int>(i)).status = JobStatus::kPending;
       if (Selected(m, options)) queue.push_back(i);
     }
   }
@@ -674,23 +685,12 @@ ReproductionRun RunReproductionOnSlurm(
     Ledger ledger = Ledger::Load(plan.dir);
     for (size_t i = 0; i < plan.models.size(); ++i) {
       const PlannedModel& m = plan.models[i];
-      LedgerEntry& entry = ledger.Entry(static_cast<int>(i));
-      if (entry.config_hash != m.LedgerKey()) {
-        entry = LedgerEntry{};
-        entry.num = static_cast<int>(i);
-      }
-      entry.overrides = m.train_overrides;
-      entry.config_hash = m.LedgerKey();
-      entry.dir = m.dir.string();
-      if (m.Done()) {
-        entry.status = JobStatus::kDone;
-        entry.error.clear();
-        entry.metrics = ModelMetrics(m);
+      if (SyncLedgerEntry(m, static_cast<int>(i), ledger)) {
         ++run.models_done;
       } else if (Selected(m, options)) {
         todo.push_back(i);
       } else {
-        entry.status = JobStatus::kPending;
+        ledger.Entry(static_cast<int>(i)).status = JobStatus::kPending;
       }
     }
     ledger.Save();
