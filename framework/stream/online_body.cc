@@ -3,10 +3,10 @@
 #include "framework/body/marker_layout.h"
 #include "framework/core/error.h"
 #include "framework/core/logging.h"
-#include "framework/solve/stage_i.h"
 
 #include <fmt/format.h>
 
+#include <chrono>
 #include <cmath>
 #include <filesystem>
 
@@ -32,6 +32,7 @@ OnlineBodySolver::OnlineBodySolver(const BodyModel& body,
       options_(std::move(options)),
       model_(body, MarkerVertices(layout).vertex_ids) {
   options_.Validate();
+  num_markers_ = model_.num_markers();
   const LayoutMarkerVertices vertices = MarkerVertices(layout);
   distances_ = vertices.distances;
   std::vector<bool> covered(static_cast<size_t>(layout.num_markers()), false);
@@ -103,7 +104,7 @@ Eigen::Matrix3Xd OnlineBodySolver::Observed(const StreamFrame& frame,
                                             std::span<const int> labels,
                                             double metres_per_unit) const {
   Eigen::Matrix3Xd observed =
-      Eigen::Matrix3Xd::Constant(3, model_.num_markers(), std::nan(""));
+      Eigen::Matrix3Xd::Constant(3, num_markers_, std::nan(""));
   for (int i = 0; i < frame.num_points(); ++i) {
     const int l = labels[static_cast<size_t>(i)];
     if (l < 0 || l >= static_cast<int>(marker_of_.size()) ||
@@ -119,40 +120,73 @@ Eigen::Matrix3Xd OnlineBodySolver::Observed(const StreamFrame& frame,
   return observed;
 }
 
-void OnlineBodySolver::Calibrate() {
+OnlineBodySolver::Calibration OnlineBodySolver::RunStageI(
+    const std::vector<Eigen::Matrix3Xd>& frames) {
+  Calibration result;
   try {
-    const std::vector<int> picked =
-        PickStageIFrames(calibration_, options_.solve.stagei);
-    std::vector<Eigen::Matrix3Xd> frames;
-    frames.reserve(picked.size());
-    for (int f : picked) frames.push_back(calibration_[static_cast<size_t>(f)]);
-    const StageIResult stagei = SolveStageI(
-        body_, &model_, distances_, frames, prior_, options_.solve.stagei);
-    stagei_summary_ = stagei.summary;
-    if (!stagei.summary.usable()) {
-      throw Error(fmt::format("stage I failed: {}", stagei.summary.message));
+    result.picked = PickStageIFrames(frames, options_.solve.stagei);
+    std::vector<Eigen::Matrix3Xd> picked;
+    picked.reserve(result.picked.size());
+    for (int f : result.picked)
+      picked.push_back(frames[static_cast<size_t>(f)]);
+    result.stagei = SolveStageI(
+        body_, &model_, distances_, picked, prior_, options_.solve.stagei);
+    if (!result.stagei.summary.usable()) {
+      result.error =
+          fmt::format("stage I failed: {}", result.stagei.summary.message);
     }
-    output_.betas = stagei.betas;
-    output_.markers_latent = model_.latent_markers();
-    output_.marker_offsets = model_.offsets();
-    output_.stagei_frames = picked;
-    solver_ = std::make_unique<StageIISolver>(
-        &model_, prior_, options_.solve.stageii);
-    SOMA_LOG(INFO,
-             "stream: body calibrated on {} of the first {} frames: {}",
-             picked.size(),
-             calibration_.size(),
-             stagei.summary.BriefReport());
   } catch (const Error& e) {
+    result.error = e.what();
+  }
+  return result;
+}
+
+void OnlineBodySolver::StartCalibration() {
+  calibration_size_ = static_cast<int>(calibration_.size());
+  if (!options_.background_stagei) {
+    FinishCalibration(RunStageI(calibration_));
+  } else {
+    stagei_ = std::async(
+        std::launch::async,
+        [this](std::vector<Eigen::Matrix3Xd> frames) {
+          return RunStageI(frames);
+        },
+        std::move(calibration_));
+  }
+  calibration_.clear();
+  calibration_.shrink_to_fit();
+}
+
+void OnlineBodySolver::FinishCalibration(Calibration result) {
+  stagei_summary_ = result.stagei.summary;
+  if (!result.error.empty()) {
     failed_ = true;
     SOMA_LOG(ERROR,
              "stream: no body: stage I on the first {} frames failed ({}); "
              "labels continue",
-             calibration_.size(),
-             e.what());
+             calibration_size_,
+             result.error);
+    return;
   }
-  calibration_.clear();
-  calibration_.shrink_to_fit();
+  output_.betas = result.stagei.betas;
+  output_.markers_latent = model_.latent_markers();
+  output_.marker_offsets = model_.offsets();
+  output_.stagei_frames = result.picked;
+  solver_ =
+      std::make_unique<StageIISolver>(&model_, prior_, options_.solve.stageii);
+  SOMA_LOG(INFO,
+           "stream: body calibrated on {} of the first {} frames{}: {}",
+           result.picked.size(),
+           calibration_size_,
+           options_.background_stagei
+               ? fmt::format(" (in the background; stage II from frame {})",
+                             output_.summaries.size())
+               : "",
+           result.stagei.summary.BriefReport());
+}
+
+void OnlineBodySolver::Finish() {
+  if (stagei_.valid()) FinishCalibration(stagei_.get());
 }
 
 SolveSummary OnlineBodySolver::AddFrame(const StreamFrame& frame,
@@ -166,13 +200,20 @@ SolveSummary OnlineBodySolver::AddFrame(const StreamFrame& frame,
   Eigen::VectorXd params =
       Eigen::VectorXd::Constant(3 + 3 * body_.num_joints(), std::nan(""));
   Eigen::Matrix3Xd simulated =
-      Eigen::Matrix3Xd::Constant(3, model_.num_markers(), std::nan(""));
-  if (solver_ == nullptr && !failed_) {
+      Eigen::Matrix3Xd::Constant(3, num_markers_, std::nan(""));
+  if (stagei_.valid() &&
+      stagei_.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
+    FinishCalibration(stagei_.get());
+  }
+  if (stagei_.valid()) {
+    summary.skipped_reason = "calibrating";
+    summary.message = "waiting for stage I (in the background)";
+  } else if (solver_ == nullptr && !failed_) {
     calibration_.push_back(observed);
     summary.skipped_reason = "calibrating";
     summary.message = "calibration segment (stage I)";
     if (static_cast<int>(calibration_.size()) >= options_.calibration_frames)
-      Calibrate();
+      StartCalibration();
   } else if (failed_) {
     summary.skipped_reason = "no_body";
     summary.message = "stage I failed";

@@ -83,6 +83,7 @@ struct StreamTaskOptions {
   bool solve = false;
   int calibration_frames = 240;
   std::string stagei_file;  // an earlier fit's _stageii.h5 (no calibration)
+  bool background_stagei = true;    // stage I does not hold up the stream
   double max_solver_time_ms = 2.0;  // per stage II solve; <= 0: none
 };
 
@@ -173,6 +174,7 @@ StreamTaskOptions DecodeStreamTaskOptions(const ConfigNode& node) {
       sr.Read("stagei", &options.stagei_file);
     }
     sr.Read("max_solver_time_ms", &options.max_solver_time_ms);
+    sr.Read("background", &options.background_stagei);
     sr.Check("calibration_frames",
              options.calibration_frames >= 1,
              "calibration_frames >= 1");
@@ -235,6 +237,7 @@ class StreamTask : public Task {
       OnlineBodyOptions body_options;
       body_options.calibration_frames = options_.calibration_frames;
       body_options.stagei_file = options_.stagei_file;
+      body_options.background_stagei = options_.background_stagei;
       body_options.solve = DecodeBodySolveOptions(cfg.at("solver"));
       body_options.solve.stageii.solver.max_solver_time_s =
           std::max(0.0, options_.max_solver_time_ms * 1e-3);
@@ -337,8 +340,10 @@ class StreamTask : public Task {
               solver->AddFrame(frame, out.labels, metres_per_unit);
           solve_ms = solve_timer.ElapsedSeconds() * 1e3;
           body_ms = (SteadySeconds() - frame.arrival) * 1e3;
-          solve_times.Add(solve_ms);
-          body_latency.Add(body_ms);
+          if (fit.skipped_reason.empty()) {  // not calibrating, a solve
+            solve_times.Add(solve_ms);
+            body_latency.Add(body_ms);
+          }
           body_solved += fit.usable();
           body_rms += fit.usable() ? fit.rms_m : 0.0;
         }
@@ -370,6 +375,7 @@ class StreamTask : public Task {
         }
       }
     } catch (const Error& e) {
+      if (solver != nullptr) solver->Finish();
       write_outputs();
       SOMA_LOG(ERROR,
                "stream: stopped after {} complete frames; outputs written "
@@ -377,6 +383,7 @@ class StreamTask : public Task {
                index);
       throw;
     }
+    if (solver != nullptr) solver->Finish();
     write_outputs();
     const double seconds = wall.ElapsedSeconds();
 

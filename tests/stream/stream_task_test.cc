@@ -283,7 +283,8 @@ TEST(StreamTask, OnlineBodyCalibratesThenSolvesEveryFrame) {
                                         "task.c3d.max_frames=60",
                                         "task.checkpoint=" + Hdm05Model(),
                                         "task.solve.enabled=true",
-                                        "task.solve.calibration_frames=30"});
+                                        "task.solve.calibration_frames=30",
+                                        "task.solve.background=false"});
   RunContext ctx;
   ctx.output_dir = testing::CreateTestDir();
   BuildContext build;
@@ -303,6 +304,33 @@ TEST(StreamTask, OnlineBodyCalibratesThenSolvesEveryFrame) {
   EXPECT_EQ(ctx.metrics().at("body_frames"), usable);
   EXPECT_GT(ctx.metrics().at("body_mean_rms_mm"), 0.0);
   EXPECT_LT(ctx.metrics().at("body_mean_rms_mm"), 30.0);
+
+  // Stage I in the background: the same fit, and the stream does not wait
+  // for it (frames 30.. until it is done get no body); the output is
+  // complete even when the stream ends first.
+  const ConfigNode background =
+      ComposeConfig({"task=stream",
+                     "task.c3d.path=" + Hdm05Take(),
+                     "task.c3d.realtime=false",
+                     "task.c3d.max_frames=60",
+                     "task.checkpoint=" + Hdm05Model(),
+                     "task.solve.enabled=true",
+                     "task.solve.calibration_frames=30"});
+  RunContext bg;
+  bg.output_dir = ctx.output_dir / "background";
+  fs::create_directories(bg.output_dir);
+  Instantiate<Task>(background.at("task"), build)->Run(background, bg);
+  const SolveOutput bg_fit =
+      ReadSolveOutput(bg.output_dir / "HDM_mm_01-02_03_120_stageii.h5");
+  ASSERT_EQ(bg_fit.summaries.size(), 60u);
+  EXPECT_TRUE(bg_fit.betas.isApprox(fit.betas, 1e-9));
+  EXPECT_EQ(bg_fit.stagei_frames, fit.stagei_frames);
+  int first = 60;
+  for (int t = 0; t < 60 && first == 60; ++t) {
+    if (bg_fit.summaries[size_t(t)].usable()) first = t;
+  }
+  EXPECT_GE(first, 30);
+  EXPECT_GE(bg.metrics().at("body_frames"), (60 - first) - 2);
 
   // The same subject again, stage I from that fit: no calibration.
   const fs::path stagei = ctx.output_dir / "HDM_mm_01-02_03_120_stageii.h5";
