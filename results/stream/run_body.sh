@@ -2,7 +2,10 @@
 # The online body of `soma stream` (task.solve.enabled=true) on the CMU take
 # corrupted by run_accuracy.sh (seed 0), against `soma solve` of the clean,
 # ground-truth-labelled take: body-fit metrics of `soma eval` (V2V, joint
-# error, PCK). Writes body.csv beside this script.
+# error, PCK). Writes body.csv beside this script. The replay runs as fast as
+# possible, which would outrun a background stage I (the stream's default), so
+# stage I runs in the foreground here: stage II then solves every frame after
+# the calibration segment.
 #   bash results/stream/run_body.sh [soma binary] [work dir]
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
@@ -17,7 +20,8 @@ echo "max_solver_time_ms,body_frames,body_mean_rms_mm,solve_p50_ms,solve_p99_ms,
 for limit in 2 4; do
   run=$work/stream_body_${take}_$limit
   "$soma" stream "$corrupted.c3d" task.c3d.realtime=false task.model=cmu41 \
-    task.solve.enabled=true task.solve.max_solver_time_ms=$limit hydra.run.dir="$run" > /dev/null
+    task.solve.enabled=true task.solve.background=false \
+    task.solve.max_solver_time_ms=$limit hydra.run.dir="$run" > /dev/null
   "$soma" eval task.gt=null task.rec=null task.body_fit_gt="$work/solve_$take/${take}_stageii.h5" \
     task.body_fit_rec="$run/${take}_stageii.h5" hydra.run.dir="$run/eval_body" > /dev/null
   e=$run/eval_body
