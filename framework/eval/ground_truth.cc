@@ -4,7 +4,7 @@
 #include "framework/core/error.h"
 #include "framework/eval/labeling_metrics.h"
 #include "framework/io/c3d.h"
-#include "framework/io/mocap_dataset.h"
+#include "framework/io/corrupted_take.h"
 
 #include <fmt/format.h>
 
@@ -18,8 +18,10 @@ std::string ClassOfColumn(const std::string& label) {
   return canonical;
 }
 
-ScoredSequence ReadC3dSequence(const fs::path& path) {
-  const C3dData c3d = ReadC3d(path);
+namespace {
+
+/// The points of `c3d` (metres, invalid = 0) with its column classes.
+ScoredSequence SequenceOfC3d(const C3dData& c3d) {
   const double to_metres = c3d.MetresPerUnit();
   ScoredSequence seq;
   seq.frames.resize(c3d.num_frames);
@@ -40,35 +42,19 @@ ScoredSequence ReadC3dSequence(const fs::path& path) {
   return seq;
 }
 
+}  // namespace
+
+ScoredSequence ReadC3dSequence(const fs::path& path) {
+  return SequenceOfC3d(ReadC3d(path));
+}
+
 ScoredSequence ReadCorruptedGroundTruth(const fs::path& h5) {
-  fs::path c3d_path = h5;
-  c3d_path.replace_extension(".c3d");
-  if (!fs::exists(c3d_path)) {
-    throw IoError(fmt::format(
-        "{}: ground truth needs its corrupted capture {} beside it (as soma "
-        "corrupt writes them)",
-        h5.string(),
-        c3d_path.string()));
-  }
-  ScoredSequence seq = ReadC3dSequence(c3d_path);
-  const DatasetReader reader(h5);
-  const DatasetInfo& info = reader.info();
-  if (reader.num_frames() != static_cast<int64_t>(seq.frames.size()) ||
-      info.num_points != static_cast<int>(seq.column_labels.size())) {
-    throw IoError(fmt::format(
-        "{}: ground truth has {} frames x {} columns but {} has {} x {}",
-        h5.string(),
-        reader.num_frames(),
-        info.num_points,
-        c3d_path.string(),
-        seq.frames.size(),
-        seq.column_labels.size()));
-  }
-  LabeledFrames gt;
-  reader.Read(0, reader.num_frames(), &gt);
+  const CorruptedTake take = ReadCorruptedTake(h5);
+  const DatasetInfo& info = take.info;
+  ScoredSequence seq = SequenceOfC3d(take.c3d);
   seq.frame_labels.assign(seq.frames.size(), {});
   for (size_t t = 0; t < seq.frames.size(); ++t) {
-    const int16_t* ids = gt.frame_labels(static_cast<int64_t>(t));
+    const int16_t* ids = take.truth.frame_labels(static_cast<int64_t>(t));
     auto& labels = seq.frame_labels[t];
     labels.resize(info.num_points);
     for (int k = 0; k < info.num_points; ++k) {
