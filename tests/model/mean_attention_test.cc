@@ -8,6 +8,8 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <memory>
+#include <utility>
 #include <vector>
 
 namespace soma {
@@ -15,12 +17,14 @@ namespace {
 
 constexpr int64_t kLabels = 4;
 
-LabelerOptions SmallOptions() {
+/// A labeler of kLabels labels and width 12 on `backbone`.
+Labeler SmallLabeler(std::shared_ptr<BackboneImpl> backbone) {
   LabelerOptions options;
   options.num_labels = kLabels;
   options.d_model = 12;
   options.hidden = 16;
-  return options;
+  return Labeler(
+      options, std::move(backbone), Sinkhorn(SinkhornOptions{}).ptr());
 }
 
 Labeler SmallAttentionLabeler() {
@@ -28,9 +32,7 @@ Labeler SmallAttentionLabeler() {
   attention.d_model = 12;
   attention.num_layers = 2;
   attention.num_heads = 3;
-  return Labeler(SmallOptions(),
-                 SelfAttention(attention).ptr(),
-                 Sinkhorn(SinkhornOptions{}).ptr());
+  return SmallLabeler(SelfAttention(attention).ptr());
 }
 
 TEST(MeanAttention, MaxOverHeadsMeanOverFramesInAnyBatchSize) {
@@ -73,9 +75,7 @@ TEST(MeanAttention, ModelWithoutSelfAttentionIsAConfigError) {
   conv.d_model = 12;
   conv.num_layers = 1;
   conv.hidden = 16;
-  Labeler model(SmallOptions(),
-                Conv1dBackbone(conv).ptr(),
-                Sinkhorn(SinkhornOptions{}).ptr());
+  Labeler model = SmallLabeler(Conv1dBackbone(conv).ptr());
   const torch::Tensor points = torch::randn({2, kLabels, 3});
   EXPECT_THROW(MeanAttention(*model, points, 2), ConfigError);
 }
