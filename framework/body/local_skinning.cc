@@ -1,5 +1,9 @@
 #include "framework/body/local_skinning.h"
 
+#include "framework/core/error.h"
+
+#include <fmt/format.h>
+
 #include <algorithm>
 #include <cmath>
 #include <map>
@@ -89,6 +93,73 @@ MarkerRings BuildMarkerRings(const BodyModel& body,
     rings.ring_offsets.push_back(static_cast<int>(rings.ring_pairs.size() / 2));
   }
   return rings;
+}
+
+void CheckVertexIds(const BodyModel& body,
+                    const std::vector<int>& vertex_ids,
+                    std::string_view who) {
+  const int nv = body.num_vertices();
+  for (const int vid : vertex_ids) {
+    if (vid < 0 || vid >= nv) {
+      throw ShapeError(fmt::format(
+          "{}: vertex id {} outside [0, {}) of '{}'", who, vid, nv, body.name));
+    }
+  }
+}
+
+LocalSkinningModel BuildLocalSkinningModel(const BodyModel& body,
+                                           const std::vector<int>& local_ids) {
+  LocalSkinningModel model;
+  model.num_joints = body.num_joints();
+  model.num_betas = body.num_betas();
+  model.parents = body.parents;
+  const int nl = static_cast<int>(local_ids.size());
+  const int nb = model.num_betas;
+
+  // Shape space restricted to the local vertices.
+  model.template_vertices = Eigen::VectorXf::Zero(4 * nl);
+  model.shape_dirs = Eigen::MatrixXf::Zero(4 * nl, nb);
+  for (int l = 0; l < nl; ++l) {
+    const int vid = local_ids[l];
+    model.template_vertices(4 * l + 3) = 1.0f;
+    for (int c = 0; c < 3; ++c) {
+      model.template_vertices(4 * l + c) =
+          static_cast<float>(body.template_vertices(c, vid));
+      for (int b = 0; b < nb; ++b) {
+        model.shape_dirs(4 * l + c, b) =
+            static_cast<float>(body.shape_dirs(3 * vid + c, b));
+      }
+    }
+  }
+  if (body.pose_dirs.size() != 0) {
+    model.pose_dirs = Eigen::MatrixXf::Zero(4 * nl, body.pose_dirs.cols());
+    for (int l = 0; l < nl; ++l) {
+      for (int c = 0; c < 3; ++c) {
+        model.pose_dirs.row(4 * l + c) =
+            body.pose_dirs.row(3 * local_ids[l] + c).cast<float>();
+      }
+    }
+  }
+
+  // Joints: J(beta) = regressor * (template + dirs * beta), precomputed.
+  model.joint_template = body.RestJoints(body.template_vertices);
+  model.joint_shape_dirs = JointShapeDirections(body);
+
+  // Skinning influences, strongest first, at most kMaxSkinningInfluences.
+  constexpr int kMax = kMaxSkinningInfluences;
+  model.influence_joint.assign(static_cast<size_t>(nl) * kMax, 0);
+  model.influence_weight.assign(static_cast<size_t>(nl) * kMax, 0.0f);
+  model.influence_count.assign(nl, 0);
+  for (int l = 0; l < nl; ++l) {
+    const std::vector<std::pair<double, int>> w =
+        SkinningInfluences(body, local_ids[l]);
+    model.influence_count[l] = static_cast<int>(w.size());
+    for (size_t k = 0; k < w.size(); ++k) {
+      model.influence_joint[l * kMax + k] = w[k].second;
+      model.influence_weight[l * kMax + k] = static_cast<float>(w[k].first);
+    }
+  }
+  return model;
 }
 
 void ComputeSkinningTransforms(const std::vector<int>& parents,

@@ -77,19 +77,7 @@ void VirtualMarkerSampler::Init(
                     distances_from_skin.size(),
                     num_markers));
   }
-  const int nv = body.num_vertices();
-  for (const int vid : vertex_ids) {
-    if (vid < 0 || vid >= nv) {
-      throw ShapeError(fmt::format(
-          "VirtualMarkerSampler: vertex id {} outside [0, {}) of '{}'",
-          vid,
-          nv,
-          body.name));
-    }
-  }
-  num_joints_ = body.num_joints();
-  num_betas_ = body.num_betas();
-  parents_ = body.parents;
+  CheckVertexIds(body, vertex_ids, "VirtualMarkerSampler");
   marker_vertex_ids_ = vertex_ids;
   distances_.resize(num_markers);
   for (int m = 0; m < num_markers; ++m) {
@@ -99,23 +87,19 @@ void VirtualMarkerSampler::Init(
   }
 
   // The marker vertices, their incident faces and the local vertex set.
-  MarkerRings rings = BuildMarkerRings(body, vertex_ids);
-  local_ids_ = std::move(rings.local_ids);
-  marker_local_ = std::move(rings.marker_local);
-  ring_offsets_ = std::move(rings.ring_offsets);
-  ring_pairs_ = std::move(rings.ring_pairs);
-  const int nl = static_cast<int>(local_ids_.size());
+  rings_ = BuildMarkerRings(body, vertex_ids);
+  const int nl = static_cast<int>(rings_.local_ids.size());
 
   // Order the local vertices by their number of skinning influences, so that
   // skinning runs one branch-free loop per count.
   {
     std::vector<int> count(nl);
     for (int l = 0; l < nl; ++l) {
+      const int vid = rings_.local_ids[l];
       count[l] = std::min<int>(
           kMaxInfluences,
-          static_cast<int>(
-              body.skinning_weights.outerIndexPtr()[local_ids_[l] + 1] -
-              body.skinning_weights.outerIndexPtr()[local_ids_[l]]));
+          static_cast<int>(body.skinning_weights.outerIndexPtr()[vid + 1] -
+                           body.skinning_weights.outerIndexPtr()[vid]));
     }
     std::vector<int> order(nl);
     for (int l = 0; l < nl; ++l) order[l] = l;
@@ -126,112 +110,81 @@ void VirtualMarkerSampler::Init(
     std::vector<int> ids(nl);
     for (int l = 0; l < nl; ++l) {
       rank[order[l]] = l;
-      ids[l] = local_ids_[order[l]];
+      ids[l] = rings_.local_ids[order[l]];
     }
-    local_ids_ = std::move(ids);
-    for (int& m : marker_local_) m = rank[m];
-    for (int& r : ring_pairs_) r = rank[r];
+    rings_.local_ids = std::move(ids);
+    for (int& m : rings_.marker_local) m = rank[m];
+    for (int& r : rings_.ring_pairs) r = rank[r];
   }
 
-  // Shape space restricted to the local vertices, stored homogeneous
-  // (x, y, z, 1) so that skinning loads each vertex as one aligned 4-vector.
-  template_ = Eigen::VectorXf::Zero(4 * nl);
-  shape_dirs_ = Eigen::MatrixXf::Zero(4 * nl, num_betas_);
+  // Shape space, pose correctives, joints and skinning influences of the
+  // local vertices.
+  skin_ = BuildLocalSkinningModel(body, rings_.local_ids);
+
+  // Only the joints that influence a local vertex, and their ancestors.
+  std::vector<char> needed(skin_.num_joints, 0);
   for (int l = 0; l < nl; ++l) {
-    const int vid = local_ids_[l];
-    template_(4 * l + 3) = 1.0f;
-    for (int c = 0; c < 3; ++c) {
-      template_(4 * l + c) = static_cast<float>(body.template_vertices(c, vid));
-      for (int b = 0; b < num_betas_; ++b) {
-        shape_dirs_(4 * l + c, b) =
-            static_cast<float>(body.shape_dirs(3 * vid + c, b));
+    for (int k = 0; k < skin_.influence_count[l]; ++k) {
+      for (int j = skin_.influence_joint[l * kMaxInfluences + k]; j >= 0;
+           j = skin_.parents[j]) {
+        needed[j] = 1;
       }
     }
   }
-  if (body.pose_dirs.size() != 0) {
-    pose_dirs_ = Eigen::MatrixXf::Zero(4 * nl, body.pose_dirs.cols());
-    for (int l = 0; l < nl; ++l) {
-      for (int c = 0; c < 3; ++c) {
-        pose_dirs_.row(4 * l + c) =
-            body.pose_dirs.row(3 * local_ids_[l] + c).cast<float>();
-      }
-    }
-  }
-
-  // Joints: J(beta) = regressor * (template + dirs * beta), precomputed.
-  joint_template_ = body.RestJoints(body.template_vertices);
-  joint_shape_dirs_ = JointShapeDirections(body);
-
-  // Skinning influences, strongest first, at most kMaxInfluences.
-  influence_joint_.assign(static_cast<size_t>(nl) * kMaxInfluences, 0);
-  influence_weight_.assign(static_cast<size_t>(nl) * kMaxInfluences, 0.0f);
-  influence_count_.assign(nl, 0);
-  std::vector<char> needed(num_joints_, 0);
-  for (int l = 0; l < nl; ++l) {
-    const std::vector<std::pair<double, int>> w =
-        SkinningInfluences(body, local_ids_[l]);
-    influence_count_[l] = static_cast<int>(w.size());
-    for (size_t k = 0; k < w.size(); ++k) {
-      influence_joint_[l * kMaxInfluences + k] = w[k].second;
-      influence_weight_[l * kMaxInfluences + k] =
-          static_cast<float>(w[k].first);
-      for (int j = w[k].second; j >= 0; j = parents_[j]) needed[j] = 1;
-    }
-  }
-  for (int j = 0; j < num_joints_; ++j) {
+  for (int j = 0; j < skin_.num_joints; ++j) {
     if (needed[j]) posed_joints_.push_back(j);
   }
   count_begin_.assign(kMaxInfluences + 2, nl);
   for (int l = nl - 1; l >= 0; --l) {
-    for (int k = 0; k <= influence_count_[l]; ++k) count_begin_[k] = l;
+    for (int k = 0; k <= skin_.influence_count[l]; ++k) count_begin_[k] = l;
   }
 }
 
 void VirtualMarkerSampler::PoseLocal(const Eigen::VectorXd& betas,
                                      const BodyPose& pose,
                                      Workspace* ws) const {
-  if (betas.size() > num_betas_) {
+  if (betas.size() > skin_.num_betas) {
     throw ShapeError(
         fmt::format("VirtualMarkerSampler: {} betas given, the body has {}",
                     betas.size(),
-                    num_betas_));
+                    skin_.num_betas));
   }
-  if (pose.rotations.cols() != num_joints_) {
+  if (pose.rotations.cols() != skin_.num_joints) {
     throw ShapeError(fmt::format(
         "VirtualMarkerSampler: pose has {} joint rotations, the body "
         "has {}",
         pose.rotations.cols(),
-        num_joints_));
+        skin_.num_joints));
   }
   const int nb = static_cast<int>(betas.size());
   const int nl = num_local_vertices();
 
   // Forward kinematics of the needed joints (double) to 3x4 skinning
   // transforms (float), and the shaped local vertices (float).
-  const bool correctives = pose_dirs_.size() != 0;
-  ComputeSkinningTransforms(parents_,
-                            joint_template_,
-                            joint_shape_dirs_,
+  const bool correctives = skin_.pose_dirs.size() != 0;
+  ComputeSkinningTransforms(skin_.parents,
+                            skin_.joint_template,
+                            skin_.joint_shape_dirs,
                             betas,
                             pose,
                             posed_joints_,
                             correctives,
                             &ws->transforms);
-  ws->shaped = template_;
+  ws->shaped = skin_.template_vertices;
   if (nb > 0) {
     ws->betas = betas.cast<float>();
-    ws->shaped.noalias() += shape_dirs_.leftCols(nb) * ws->betas;
+    ws->shaped.noalias() += skin_.shape_dirs.leftCols(nb) * ws->betas;
   }
   if (correctives) {
-    ws->shaped.noalias() += pose_dirs_ * ws->transforms.pose_features;
+    ws->shaped.noalias() += skin_.pose_dirs * ws->transforms.pose_features;
   }
   // Linear blend skinning of the local vertices, grouped by influence count.
   ws->posed.resize(3 * nl);
   const float* shaped = ws->shaped.data();
   float* posed = ws->posed.data();
   const Eigen::Vector4f* rows = ws->transforms.rows.data();
-  const int* joints = influence_joint_.data();
-  const float* weights = influence_weight_.data();
+  const int* joints = skin_.influence_joint.data();
+  const float* weights = skin_.influence_weight.data();
   for (int l = count_begin_[0]; l < count_begin_[1]; ++l) {
     for (int c = 0; c < 3; ++c) posed[3 * l + c] = shaped[4 * l + c];
   }
@@ -245,21 +198,6 @@ void VirtualMarkerSampler::PoseLocal(const Eigen::VectorXd& betas,
       count_begin_[4], count_begin_[5], joints, weights, rows, shaped, posed);
 }
 
-Eigen::Vector3f VirtualMarkerSampler::MarkerNormal(int m,
-                                                   const float* posed) const {
-  const int a = marker_local_[m];
-  const Eigen::Vector3f pa(posed[3 * a], posed[3 * a + 1], posed[3 * a + 2]);
-  Eigen::Vector3f n = Eigen::Vector3f::Zero();
-  for (int f = ring_offsets_[m]; f < ring_offsets_[m + 1]; ++f) {
-    const int b = ring_pairs_[2 * f];
-    const int c = ring_pairs_[2 * f + 1];
-    const Eigen::Vector3f pb(posed[3 * b], posed[3 * b + 1], posed[3 * b + 2]);
-    const Eigen::Vector3f pc(posed[3 * c], posed[3 * c + 1], posed[3 * c + 2]);
-    n += (pb - pa).cross(pc - pa);
-  }
-  return n;
-}
-
 void VirtualMarkerSampler::Sample(const Eigen::VectorXd& betas,
                                   const BodyPose& pose,
                                   Workspace* workspace,
@@ -269,10 +207,10 @@ void VirtualMarkerSampler::Sample(const Eigen::VectorXd& betas,
   markers->resize(3, num);
   const float* posed = workspace->posed.data();
   for (int m = 0; m < num; ++m) {
-    Eigen::Vector3f n = MarkerNormal(m, posed);
+    Eigen::Vector3f n = RingNormal(rings_, m, posed);
     const float norm = n.norm();
     if (norm > 0.0f) n /= norm;
-    const int a = marker_local_[m];
+    const int a = rings_.marker_local[m];
     const float d = distances_[m];
     for (int c = 0; c < 3; ++c) (*markers)(c, m) = posed[3 * a + c] + d * n(c);
   }
@@ -297,10 +235,10 @@ void VirtualMarkerSampler::SampleSurface(const Eigen::VectorXd& betas,
   normals->resize(3, num);
   const float* posed = workspace->posed.data();
   for (int m = 0; m < num; ++m) {
-    Eigen::Vector3f n = MarkerNormal(m, posed);
+    Eigen::Vector3f n = RingNormal(rings_, m, posed);
     const float norm = n.norm();
     if (norm > 0.0f) n /= norm;
-    const int a = marker_local_[m];
+    const int a = rings_.marker_local[m];
     for (int c = 0; c < 3; ++c) {
       (*vertices)(c, m) = posed[3 * a + c];
       (*normals)(c, m) = n(c);

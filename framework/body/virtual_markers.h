@@ -40,9 +40,13 @@ class VirtualMarkerSampler {
   /// The layout's markers, each on its first vertex id, in layout order.
   VirtualMarkerSampler(const BodyModel& body, const MarkerLayout& layout);
 
-  int num_markers() const { return static_cast<int>(marker_local_.size()); }
+  int num_markers() const {
+    return static_cast<int>(rings_.marker_local.size());
+  }
   /// Vertices shaped and skinned per sample (markers + 1-rings).
-  int num_local_vertices() const { return static_cast<int>(local_ids_.size()); }
+  int num_local_vertices() const {
+    return static_cast<int>(rings_.local_ids.size());
+  }
   const std::vector<int>& marker_vertex_ids() const {
     return marker_vertex_ids_;
   }
@@ -74,31 +78,17 @@ class VirtualMarkerSampler {
   void PoseLocal(const Eigen::VectorXd& betas,
                  const BodyPose& pose,
                  Workspace* workspace) const;
-  /// Unnormalised normal (sum of face cross products) at marker m.
-  Eigen::Vector3f MarkerNormal(int m, const float* posed) const;
 
   static constexpr int kMaxInfluences = kMaxSkinningInfluences;
 
-  int num_joints_ = 0;
-  int num_betas_ = 0;
-  std::vector<int> parents_;
   std::vector<int> marker_vertex_ids_;  // M
   std::vector<float> distances_;        // M
-  std::vector<int> local_ids_;          // L body vertex ids
-  std::vector<int> marker_local_;       // M local index of each marker vertex
-  // Per marker: ring faces as pairs (local b, local c) with (m, b, c) CCW.
-  std::vector<int> ring_offsets_;     // M + 1
-  std::vector<int> ring_pairs_;       // 2 per face
-  Eigen::VectorXf template_;          // 4L: (x, y, z, 1) per vertex
-  Eigen::MatrixXf shape_dirs_;        // 4L x B, rows 4l+3 zero
-  Eigen::MatrixXf pose_dirs_;         // 4L x 9(J-1), empty if none
-  Eigen::Matrix3Xd joint_template_;   // 3 x J
-  Eigen::MatrixXd joint_shape_dirs_;  // 3J x B
+  // The marker vertices and their 1-rings; local vertices sorted by their
+  // number of skinning influences.
+  MarkerRings rings_;
+  LocalSkinningModel skin_;        // of rings_.local_ids
   std::vector<int> posed_joints_;  // joints needed, ascending (parents first)
-  std::vector<int> influence_joint_;     // L x kMaxInfluences
-  std::vector<float> influence_weight_;  // L x kMaxInfluences (0-padded)
-  std::vector<int> influence_count_;     // L, local vertices sorted by it
-  std::vector<int> count_begin_;  // first local vertex with >= k influences
+  std::vector<int> count_begin_;   // first local vertex with >= k influences
 };
 
 }  // namespace soma

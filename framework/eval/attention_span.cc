@@ -1,10 +1,14 @@
 #include "framework/eval/attention_span.h"
 
 #include "framework/core/error.h"
+#include "framework/core/random.h"
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cmath>
+#include <numbers>
+#include <utility>
 
 namespace soma {
 
@@ -64,6 +68,105 @@ Eigen::MatrixXd PairwiseDistances(const Eigen::Matrix3Xd& points) {
     d.col(i) = (points.colwise() - points.col(i)).colwise().norm().transpose();
   }
   return d;
+}
+
+Eigen::Matrix3Xd APoseMarkers(const BodyModel& body,
+                              const MarkerLayout& layout,
+                              const std::vector<std::string>& labels,
+                              double arm_angle_deg) {
+  BodyPose pose = BodyPose::Rest(body.num_joints());
+  const double angle = arm_angle_deg * std::numbers::pi / 180.0;
+  for (const auto& [joint, sign] :
+       {std::pair<const char*, double>{"left_shoulder", 1.0},
+        {"right_shoulder", -1.0}}) {
+    const int j = body.FindJoint(joint);
+    if (j < 0) {
+      throw ShapeError(fmt::format(
+          "attention_span: body '{}' has no joint '{}' to lower the arms "
+          "(set task.arm_angle_deg=0 for the rest pose)",
+          body.name,
+          joint));
+    }
+    pose.rotations.col(j) = Eigen::Vector3d(0, sign * angle, 0);
+  }
+  const Eigen::Matrix3Xd vertices =
+      PoseVertices(body, Eigen::VectorXd::Zero(body.num_betas()), pose);
+  const Eigen::Matrix3Xd all =
+      MarkerPositions(layout, vertices, VertexNormals(vertices, body.faces));
+  Eigen::Matrix3Xd markers(3, labels.size());
+  for (size_t l = 0; l < labels.size(); ++l) {
+    const int m = layout.FindLabel(labels[l]);
+    if (m < 0) {
+      throw ConfigError(fmt::format(
+          "attention_span: the model's label '{}' is not in the layout "
+          "(choose the layout the model was trained with, e.g. "
+          "layout=superset89)",
+          labels[l]));
+    }
+    markers.col(l) = all.col(m);
+  }
+  return markers;
+}
+
+CompleteFrames SelectCompleteFrames(const C3dData& c3d,
+                                    const std::vector<std::string>& labels,
+                                    const std::string& source,
+                                    int max_frames,
+                                    uint64_t seed) {
+  std::vector<int> column(labels.size(), -1);
+  for (int k = 0; k < c3d.num_points; ++k) {
+    const std::string label = CanonicalMarkerLabel(c3d.labels[k]);
+    for (size_t l = 0; l < labels.size(); ++l) {
+      if (labels[l] == label) column[l] = k;
+    }
+  }
+  for (size_t l = 0; l < labels.size(); ++l) {
+    if (column[l] < 0) {
+      throw IoError(fmt::format(
+          "{}: no column labelled '{}' (the model's labels must all be in "
+          "the take)",
+          source,
+          labels[l]));
+    }
+  }
+  std::vector<int> frames;
+  for (int t = 0; t < c3d.num_frames; ++t) {
+    bool complete = true;
+    for (int k : column) {
+      const Eigen::Vector3f p = c3d.Point(t, k);
+      complete = complete && c3d.valid(t, k) && p.allFinite() &&
+                 !(p.array() == 0.0f).all();
+    }
+    if (complete) frames.push_back(t);
+  }
+  if (frames.empty()) {
+    throw IoError(
+        fmt::format("{}: no frame has all {} labels", source, labels.size()));
+  }
+  if (static_cast<int>(frames.size()) > max_frames) {
+    Rng rng = Rng(seed).Stream("attention_span/frames");
+    std::vector<int> picked;
+    for (int i : rng.SampleWithoutReplacement(static_cast<int>(frames.size()),
+                                              max_frames)) {
+      picked.push_back(frames[i]);
+    }
+    std::sort(picked.begin(), picked.end());
+    frames = std::move(picked);
+  }
+  const double to_metres = c3d.MetresPerUnit();
+  CompleteFrames complete;
+  complete.points.resize(frames.size() * labels.size() * 3);
+  float* a = complete.points.data();
+  for (size_t f = 0; f < frames.size(); ++f) {
+    for (size_t l = 0; l < labels.size(); ++l) {
+      const Eigen::Vector3f p = c3d.Point(frames[f], column[l]);
+      for (int i = 0; i < 3; ++i) {
+        *a++ = static_cast<float>(p[i] * to_metres);
+      }
+    }
+  }
+  complete.frames = std::move(frames);
+  return complete;
 }
 
 }  // namespace soma

@@ -6,6 +6,7 @@
 #include "framework/core/provenance.h"
 #include "framework/core/random.h"
 #include "framework/io/c3d.h"
+#include "framework/synth/ghosts.h"
 
 #include <fmt/format.h>
 
@@ -203,44 +204,38 @@ LabeledSequence CorruptSequence(const LabeledSequence& clean,
   stats.missing_after = real_points > 0 ? missing / real_points : 0.0;
 
   // 2. Ghost points around the per-frame median/std of all columns (zeros
-  // included), up-to rejection.
+  // included), up-to rejection: the ghosts module's sampling (ghosts.h) with
+  // exactly G spherical Gaussian ghosts per frame.
   if (setting.ghosts > 0) {
     Rng ghosts = rng.Stream("ghosts");
     const int g = setting.ghosts;
+    GhostOptions options;
+    options.distribution = GhostDistribution::kSphericalGaussian;
+    options.max_count = g;
+    options.exact = true;
+    options.up_to = true;
     std::vector<Column> ghost_columns(g);
     for (Column& column : ghost_columns) {
       column.xyz.assign(num_frames * 3, 0.0f);
       column.labels.assign(num_frames, null_label);
     }
-    std::vector<double> values(num_real);
+    std::vector<float> values(num_real);
+    std::vector<float> xyz;
+    std::vector<char> dropped;
     int64_t kept = 0;
     for (int64_t t = 0; t < num_frames; ++t) {
-      double median[3];
-      double stddev[3];
+      GhostCentre centre;
       for (int axis = 0; axis < 3; ++axis) {
-        double mean = 0.0;
         for (int k = 0; k < num_real; ++k) {
           values[k] = columns[k].xyz[3 * t + axis];
-          mean += values[k];
         }
-        mean /= num_real;
-        double ss = 0.0;
-        for (double v : values) ss += (v - mean) * (v - mean);
-        stddev[axis] = num_real > 1 ? std::sqrt(ss / (num_real - 1)) : 0.0;
-        // torch.median: the lower of the two middle values.
-        std::nth_element(
-            values.begin(), values.begin() + (num_real - 1) / 2, values.end());
-        median[axis] = values[(num_real - 1) / 2];
+        LowerMedianAndStd(&values, &centre.median[axis], &centre.sigma[axis]);
       }
-      for (Column& column : ghost_columns) {
-        for (int axis = 0; axis < 3; ++axis) {
-          column.xyz[3 * t + axis] =
-              static_cast<float>(ghosts.Normal(median[axis], stddev[axis]));
-        }
-      }
+      DrawGhosts(options, g, centre, ghosts, &xyz, &dropped);
       for (int slot = 0; slot < g; ++slot) {
-        const int64_t r = ghosts.UniformInt(0, 3 * int64_t{g} - 1);
-        if (r < g) std::fill_n(ghost_columns[r].xyz.data() + 3 * t, 3, 0.0f);
+        if (dropped[slot]) continue;
+        std::copy_n(
+            xyz.data() + 3 * slot, 3, ghost_columns[slot].xyz.data() + 3 * t);
       }
       for (const Column& column : ghost_columns) {
         kept += !IsZero(column.xyz.data() + 3 * t);

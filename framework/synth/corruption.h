@@ -10,7 +10,8 @@
 //  2. ghosts: G columns of spherical Gaussian points around the per-frame
 //     median with the per-frame (unbiased) std, both over ALL K columns
 //     including zeros; up-to rejection: each of G draws r ~ U{0..3G-1}
-//     zeroes ghost r when r < G; ghosts are labelled null;
+//     zeroes ghost r when r < G; ghosts are labelled null (the sampling of
+//     the ghosts noise module, ghosts.h, with exactly G ghosts);
 //  3. every zero point is labelled null; one random permutation of the
 //     columns (the same for all frames, so columns stay tracklets);
 //  4. broken trajectories: min(BT, T) distinct cut times from [2, T-2],

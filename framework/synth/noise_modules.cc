@@ -3,15 +3,13 @@
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/registry/registry.h"
+#include "framework/synth/ghosts.h"
 #include "framework/synth/noise.h"
 #include "framework/synth/noise_bank.h"
 
-#include <Eigen/Core>
-#include <Eigen/QR>
 #include <fmt/format.h>
 
 #include <algorithm>
-#include <array>
 #include <cmath>
 #include <memory>
 #include <string>
@@ -90,84 +88,6 @@ std::unique_ptr<NoiseModule> MakeOcclusion(const ConfigNode& node,
 
 // ---- ghosts.
 
-enum class GhostDistribution { kSphericalGaussian, kUniform, kSkewedGaussian };
-
-/// REFERENCE.md 3.5 step 4.
-struct GhostOptions {
-  GhostDistribution distribution = GhostDistribution::kSphericalGaussian;
-  int max_count = 3;         // G ~ U{0..max_count}; also the slots used
-  bool exact = false;        // always G = max_count
-  bool up_to = true;         // "up-to" rejection (use_upto_num_ghost)
-  double half_extent = 2.0;  // uniform box / skewed mean U(-h, h), metres
-};
-
-/// Median (lower median for even counts, as torch.median) of `values`
-/// (reordered in place).
-float LowerMedian(std::vector<float>& values) {
-  const size_t mid = (values.size() - 1) / 2;
-  std::nth_element(values.begin(), values.begin() + mid, values.end());
-  return values[mid];
-}
-
-/// A random 3x3 correlation matrix with eigenvalues 3 u / sum(u), u ~ U(0,
-/// 1)^3, as scipy.stats.random_correlation (Davies & Higham 2000: a Haar
-/// random rotation of diag(eigenvalues), then Givens rotations that make the
-/// diagonal 1). Returns a factor F with C = F F^T (F = B sqrt(Lambda)).
-Eigen::Matrix3d RandomCorrelationFactor(Rng& rng) {
-  Eigen::Vector3d eig;
-  for (int i = 0; i < 3; ++i) eig(i) = rng.Uniform();
-  // Guard the (measure-zero) all-zero draw.
-  const double total = std::max(eig.sum(), 1e-12);
-  eig *= 3.0 / total;
-  // Haar-random orthogonal matrix: QR of a Gaussian matrix with the signs of
-  // R's diagonal moved into Q.
-  Eigen::Matrix3d gauss;
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) gauss(r, c) = rng.Normal();
-  }
-  const Eigen::HouseholderQR<Eigen::Matrix3d> qr(gauss);
-  Eigen::Matrix3d b = qr.householderQ();
-  const Eigen::Matrix3d r = qr.matrixQR().triangularView<Eigen::Upper>();
-  for (int c = 0; c < 3; ++c) {
-    if (r(c, c) < 0) b.col(c) = -b.col(c);
-  }
-  Eigen::Matrix3d m = b * eig.asDiagonal() * b.transpose();
-  // scipy's _to_corr: rotate pairs (i, j) so that m(i, i) becomes 1.
-  for (int i = 0; i < 2; ++i) {
-    if (m(i, i) == 1.0) continue;
-    int j = i + 1;
-    if (m(i, i) > 1.0) {
-      for (j = i + 1; j < 3; ++j) {
-        if (m(j, j) < 1.0) break;
-      }
-    } else {
-      for (j = i + 1; j < 3; ++j) {
-        if (m(j, j) > 1.0) break;
-      }
-    }
-    if (j >= 3) j = 2;
-    const double aiid = m(i, i) - 1.0;
-    const double ajjd = m(j, j) - 1.0;
-    const double aij = m(i, j);
-    double c = 0.0;
-    double s = 1.0;
-    if (ajjd != 0.0) {
-      const double dd = std::sqrt(std::max(aij * aij - aiid * ajjd, 0.0));
-      const double t = (aij + std::copysign(dd, aij)) / ajjd;
-      c = 1.0 / std::sqrt(1.0 + t * t);
-      s = c == 0.0 ? 1.0 : c * t;
-    }
-    Eigen::Matrix3d g = Eigen::Matrix3d::Identity();
-    g(i, i) = c;
-    g(j, j) = c;
-    g(j, i) = -s;
-    g(i, j) = s;
-    m = g.transpose() * m * g;
-    b = g.transpose() * b;
-  }
-  return b * eig.cwiseSqrt().asDiagonal();
-}
-
 class GhostsModule : public NoiseModule {
  public:
   explicit GhostsModule(const GhostOptions& options) : options_(options) {}
@@ -180,78 +100,38 @@ class GhostsModule : public NoiseModule {
             ? options_.max_count
             : static_cast<int>(rng.UniformInt(0, options_.max_count));
     if (count == 0) return;
-    std::array<double, 3> mean = {0.0, 0.0, 0.0};
-    std::array<double, 3> sigma = {0.0, 0.0, 0.0};
-    Eigen::Matrix3d factor = Eigen::Matrix3d::Identity();
-    switch (options_.distribution) {
-      case GhostDistribution::kSphericalGaussian:
-        if (!MarkerStatistics(*frame, &mean, &sigma)) return;
-        break;
-      case GhostDistribution::kUniform:
-        break;
-      case GhostDistribution::kSkewedGaussian:
-        for (double& m : mean) {
-          m = rng.Uniform(-options_.half_extent, options_.half_extent);
-        }
-        factor = RandomCorrelationFactor(rng);
-        break;
+    GhostCentre centre;
+    if (options_.distribution == GhostDistribution::kSphericalGaussian &&
+        !MarkerStatistics(*frame, &centre)) {
+      return;
     }
+    thread_local std::vector<float> xyz;
+    thread_local std::vector<char> dropped;
+    DrawGhosts(options_, count, centre, rng, &xyz, &dropped);
     for (int g = 0; g < count; ++g) {
-      Eigen::Vector3d p = Eigen::Vector3d::Zero();
-      switch (options_.distribution) {
-        case GhostDistribution::kSphericalGaussian:
-          for (int c = 0; c < 3; ++c) p(c) = mean[c] + sigma[c] * rng.Normal();
-          break;
-        case GhostDistribution::kUniform:
-          for (int c = 0; c < 3; ++c) {
-            p(c) = rng.Uniform(-options_.half_extent, options_.half_extent);
-          }
-          break;
-        case GhostDistribution::kSkewedGaussian: {
-          Eigen::Vector3d z;
-          for (int c = 0; c < 3; ++c) z(c) = rng.Normal();
-          p = Eigen::Vector3d(mean[0], mean[1], mean[2]) + factor * z;
-          break;
-        }
-      }
       frame->Set(ghost_begin + g,
-                 static_cast<float>(p(0)),
-                 static_cast<float>(p(1)),
-                 static_cast<float>(p(2)),
+                 xyz[3 * g],
+                 xyz[3 * g + 1],
+                 xyz[3 * g + 2],
                  frame->null_label());
     }
-    if (options_.up_to) {
-      // Draw `count` integers from [0, 3 count); every ghost whose index was
-      // drawn is dropped (each survives with probability
-      // (1 - 1/(3 count))^count).
-      for (int g = 0; g < count; ++g) {
-        const int index = static_cast<int>(rng.UniformInt(0, 3 * count - 1));
-        if (index < count) frame->Remove(ghost_begin + index);
-      }
+    for (int g = 0; g < count; ++g) {
+      if (dropped[g]) frame->Remove(ghost_begin + g);
     }
   }
 
  private:
   /// Per-coordinate lower median and unbiased std of the available markers;
   /// false if fewer than 2 (the std is undefined: no ghosts).
-  static bool MarkerStatistics(const MarkerFrame& frame,
-                               std::array<double, 3>* median,
-                               std::array<double, 3>* sigma) {
+  static bool MarkerStatistics(const MarkerFrame& frame, GhostCentre* centre) {
     thread_local std::vector<float> values;
     for (int c = 0; c < 3; ++c) {
       values.clear();
       for (int i = 0; i < frame.num_points(); ++i) {
         if (frame.IsAvailableMarker(i)) values.push_back(frame.point(i)[c]);
       }
-      const int n = static_cast<int>(values.size());
-      if (n < 2) return false;
-      double sum = 0.0;
-      for (const float v : values) sum += v;
-      const double mean = sum / n;
-      double ss = 0.0;
-      for (const float v : values) ss += (v - mean) * (v - mean);
-      (*sigma)[c] = std::sqrt(ss / (n - 1));
-      (*median)[c] = LowerMedian(values);
+      if (values.size() < 2) return false;
+      LowerMedianAndStd(&values, &centre->median[c], &centre->sigma[c]);
     }
     return true;
   }

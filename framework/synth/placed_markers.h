@@ -2,7 +2,8 @@
 // (REFERENCE.md 3.3, randomised placement): the same arithmetic as
 // VirtualMarkerSampler (marker = v + n * d, LBS in float32 after forward
 // kinematics in double, normal = normalised sum of the incident faces' cross
-// products), precomputed once for the union of all labels' candidate
+// products) on the same precomputed LocalSkinningModel
+// (body/local_skinning.h), built once for the union of all labels' candidate
 // vertices, but each frame shapes and skins only the vertices of the chosen
 // candidates (and their 1-rings), so randomised placement costs about as much
 // as a fixed layout.
@@ -26,7 +27,7 @@ class PlacedMarkerSampler {
                       const std::vector<double>& distances);
 
   int num_candidates() const {
-    return static_cast<int>(candidate_local_.size());
+    return static_cast<int>(rings_.marker_local.size());
   }
 
   /// The local vertices a selection of candidates needs (computed once per
@@ -53,22 +54,10 @@ class PlacedMarkerSampler {
               float* out) const;
 
  private:
-  int num_joints_ = 0;
-  int num_betas_ = 0;
-  int num_local_ = 0;
-  std::vector<int> parents_;
-  std::vector<int> all_joints_;          // 0..J-1
-  std::vector<int> candidate_local_;     // local index of each candidate vertex
-  std::vector<float> distances_;         // per candidate
-  std::vector<int> ring_offsets_;        // per candidate, into ring_pairs_
-  std::vector<int> ring_pairs_;          // local (b, c) with (a, b, c) CCW
-  std::vector<float> template_;          // 4 per local vertex (x, y, z, 1)
-  std::vector<float> shape_dirs_;        // local x B x 4 (4th = 0)
-  Eigen::MatrixXf pose_dirs_;            // 4 local x 9 (J - 1), empty if none
-  std::vector<int> influence_joint_;     // 4 per local vertex
-  std::vector<float> influence_weight_;  // 4 per local vertex (0-padded)
-  Eigen::Matrix3Xd joint_template_;      // 3 x J
-  Eigen::MatrixXd joint_shape_dirs_;     // 3J x B
+  std::vector<int> all_joints_;   // 0..J-1
+  std::vector<float> distances_;  // per candidate
+  MarkerRings rings_;             // the candidate vertices and their 1-rings
+  LocalSkinningModel skin_;       // of rings_.local_ids
 };
 
 }  // namespace soma::internal

@@ -23,10 +23,10 @@
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
 #include "framework/core/plot.h"
-#include "framework/core/random.h"
 #include "framework/eval/attention_span.h"
 #include "framework/io/c3d.h"
 #include "framework/model/labeler.h"
+#include "framework/model/mean_attention.h"
 #include "framework/model/torch_utils.h"
 #include "framework/registry/registry.h"
 #include "framework/tasks/components.h"
@@ -38,7 +38,6 @@
 
 #include <cmath>
 #include <filesystem>
-#include <numbers>
 #include <optional>
 #include <sstream>
 
@@ -70,145 +69,20 @@ std::optional<ConfigNode> TrainingLayoutGroup(const std::string& checkpoint,
   return *layout;
 }
 
-/// Marker positions (3 x L, model label order) on `body` at mean shape in
-/// an A-pose: the shoulders rotated `arm_angle_deg` down about the
-/// front-back axis (the procedural and MakeHuman rest poses are T-poses
-/// with the left arm along +x, z up).
-Eigen::Matrix3Xd APoseMarkers(const BodyModel& body,
-                              const MarkerLayout& layout,
-                              const std::vector<std::string>& labels,
-                              double arm_angle_deg) {
-  BodyPose pose = BodyPose::Rest(body.num_joints());
-  const double angle = arm_angle_deg * std::numbers::pi / 180.0;
-  for (const auto& [joint, sign] :
-       {std::pair<const char*, double>{"left_shoulder", 1.0},
-        {"right_shoulder", -1.0}}) {
-    const int j = body.FindJoint(joint);
-    if (j < 0) {
-      throw ShapeError(fmt::format(
-          "attention_span: body '{}' has no joint '{}' to lower the arms "
-          "(set task.arm_angle_deg=0 for the rest pose)",
-          body.name,
-          joint));
-    }
-    pose.rotations.col(j) = Eigen::Vector3d(0, sign * angle, 0);
-  }
-  const Eigen::Matrix3Xd vertices =
-      PoseVertices(body, Eigen::VectorXd::Zero(body.num_betas()), pose);
-  const Eigen::Matrix3Xd all =
-      MarkerPositions(layout, vertices, VertexNormals(vertices, body.faces));
-  Eigen::Matrix3Xd markers(3, labels.size());
-  for (size_t l = 0; l < labels.size(); ++l) {
-    const int m = layout.FindLabel(labels[l]);
-    if (m < 0) {
-      throw ConfigError(fmt::format(
-          "attention_span: the model's label '{}' is not in the layout "
-          "(choose the layout the model was trained with, e.g. "
-          "layout=superset89)",
-          labels[l]));
-    }
-    markers.col(l) = all.col(m);
-  }
-  return markers;
-}
-
-/// Frames x labels x 3 (metres) of the take's frames that have every label.
-torch::Tensor CompleteFrames(const C3dData& c3d,
-                             const std::vector<std::string>& labels,
-                             const std::string& source,
-                             int max_frames,
-                             uint64_t seed) {
-  std::vector<int> column(labels.size(), -1);
-  for (int k = 0; k < c3d.num_points; ++k) {
-    const std::string label = CanonicalMarkerLabel(c3d.labels[k]);
-    for (size_t l = 0; l < labels.size(); ++l) {
-      if (labels[l] == label) column[l] = k;
-    }
-  }
-  for (size_t l = 0; l < labels.size(); ++l) {
-    if (column[l] < 0) {
-      throw IoError(fmt::format(
-          "{}: no column labelled '{}' (the model's labels must all be in "
-          "the take)",
-          source,
-          labels[l]));
-    }
-  }
-  std::vector<int> frames;
-  for (int t = 0; t < c3d.num_frames; ++t) {
-    bool complete = true;
-    for (int k : column) {
-      const Eigen::Vector3f p = c3d.Point(t, k);
-      complete = complete && c3d.valid(t, k) && p.allFinite() &&
-                 !(p.array() == 0.0f).all();
-    }
-    if (complete) frames.push_back(t);
-  }
-  if (frames.empty()) {
-    throw IoError(
-        fmt::format("{}: no frame has all {} labels", source, labels.size()));
-  }
-  if (static_cast<int>(frames.size()) > max_frames) {
-    Rng rng = Rng(seed).Stream("attention_span/frames");
-    std::vector<int> picked;
-    for (int i : rng.SampleWithoutReplacement(static_cast<int>(frames.size()),
-                                              max_frames)) {
-      picked.push_back(frames[i]);
-    }
-    std::sort(picked.begin(), picked.end());
-    frames = std::move(picked);
-  }
-  const double to_metres = c3d.MetresPerUnit();
-  torch::Tensor points = torch::zeros({static_cast<int64_t>(frames.size()),
-                                       static_cast<int64_t>(labels.size()),
-                                       3});
-  auto a = points.accessor<float, 3>();
-  for (size_t f = 0; f < frames.size(); ++f) {
-    for (size_t l = 0; l < labels.size(); ++l) {
-      const Eigen::Vector3f p = c3d.Point(frames[f], column[l]);
-      for (int i = 0; i < 3; ++i) {
-        a[f][l][i] = static_cast<float>(p[i] * to_metres);
-      }
-    }
-  }
-  return points;
-}
-
-/// Per layer: attention maxed over heads, averaged over frames (L x L).
-std::vector<Eigen::MatrixXd> MeanAttention(LabelerImpl& model,
-                                           const torch::Tensor& points,
-                                           int batch_size) {
-  torch::NoGradGuard no_grad;
-  model.eval();
-  torch::Tensor sum;
-  const int64_t frames = points.size(0);
-  for (int64_t t0 = 0; t0 < frames; t0 += batch_size) {
-    const int64_t n = std::min<int64_t>(batch_size, frames - t0);
-    const LabelerOutput out =
-        model.forward(points.narrow(0, t0, n), /*return_attention=*/true);
-    if (!out.attention.defined()) {
-      throw ConfigError(
-          "attention_span: the model has no self-attention layers (e.g. "
-          "model=conv1d)");
-    }
-    // B x k x h x N x N -> max over heads -> sum over frames: k x N x N.
-    const torch::Tensor layer_sum =
-        std::get<0>(out.attention.max(/*dim=*/2)).sum(/*dim=*/0);
-    sum = sum.defined() ? sum + layer_sum : layer_sum;
-  }
-  const torch::Tensor mean =
-      (sum / static_cast<double>(frames)).to(torch::kDouble).contiguous();
-  const int64_t k = mean.size(0), n = mean.size(1);
-  std::vector<Eigen::MatrixXd> layers;
-  for (int64_t l = 0; l < k; ++l) {
-    // Row-major N x N (rows = attending marker) into a column-major matrix.
-    layers.push_back(Eigen::Map<const Eigen::Matrix<double,
-                                                    Eigen::Dynamic,
-                                                    Eigen::Dynamic,
-                                                    Eigen::RowMajor>>(
-        mean[l].data_ptr<double>(), n, n));
-  }
-  return layers;
+/// SelectCompleteFrames as a `F x L x 3` float tensor.
+torch::Tensor CompleteFrameTensor(const C3dData& c3d,
+                                  const std::vector<std::string>& labels,
+                                  const std::string& source,
+                                  int max_frames,
+                                  uint64_t seed) {
+  CompleteFrames complete =
+      SelectCompleteFrames(c3d, labels, source, max_frames, seed);
+  return torch::from_blob(complete.points.data(),
+                          {static_cast<int64_t>(complete.frames.size()),
+                           static_cast<int64_t>(labels.size()),
+                           3},
+                          torch::kFloat)
+      .clone();
 }
 
 class AttentionSpanTask : public Task {
@@ -241,7 +115,7 @@ class AttentionSpanTask : public Task {
       }
       labels = info.labels;
       Labeler model = LoadLabelerFromCheckpoint(checkpoint);
-      const torch::Tensor points = CompleteFrames(
+      const torch::Tensor points = CompleteFrameTensor(
           c3d, labels, options_.input, options_.max_frames, options_.seed);
       frames_used = points.size(0);
       const MarkerLayout layout =

@@ -3,6 +3,7 @@
 #include "framework/body/marker_layout.h"
 #include "framework/core/error.h"
 #include "framework/io/c3d.h"
+#include "framework/io/corrupted_take.h"
 #include "framework/io/mocap_dataset.h"
 
 #include <fmt/format.h>
@@ -142,31 +143,10 @@ std::vector<LabeledPoints> ReadTruth(const fs::path& path, LabelIds& ids) {
         "labelled .c3d",
         path.string()));
   }
-  fs::path c3d_path = path;
-  c3d_path.replace_extension(".c3d");
-  if (!fs::exists(c3d_path)) {
-    throw IoError(fmt::format(
-        "{}: ground truth needs its corrupted capture {} beside it (as soma "
-        "corrupt writes them)",
-        path.string(),
-        c3d_path.string()));
-  }
-  const C3dData c3d = ReadC3d(c3d_path);
-  const DatasetReader reader(path);
-  const DatasetInfo& info = reader.info();
-  if (reader.num_frames() != c3d.num_frames ||
-      info.num_points != c3d.num_points) {
-    throw IoError(fmt::format(
-        "{}: ground truth has {} frames x {} columns but {} has {} x {}",
-        path.string(),
-        reader.num_frames(),
-        info.num_points,
-        c3d_path.string(),
-        c3d.num_frames,
-        c3d.num_points));
-  }
-  LabeledFrames gt;
-  reader.Read(0, reader.num_frames(), &gt);
+  const CorruptedTake take = ReadCorruptedTake(path);
+  const C3dData& c3d = take.c3d;
+  const LabeledFrames& gt = take.truth;
+  const DatasetInfo& info = take.info;
   const double to_metres = c3d.MetresPerUnit();
   DatasetLabelIds label_id(info, ids);
   std::vector<LabeledPoints> frames(c3d.num_frames);

@@ -269,6 +269,36 @@ TEST(NoiseModules, SkewedGhostsHaveUnitVarianceAndCorrelation) {
   EXPECT_GT(max_offdiag, 0.2);  // correlated, not the identity
 }
 
+TEST(NoiseModules, GhostDistributionsMatchTheirGoldenHashes) {
+  // Pinned across builds: 200 frames of each ghost distribution (random
+  // counts, up-to rejection) hash to the values below (FNV-1a over the
+  // points' and labels' bytes). A change of the ghost sampling or of its
+  // order of RNG draws shows here; update a value only on purpose.
+  const std::map<std::string, uint64_t> expected = {
+      {"spherical_gaussian", 15944975628903328528u},
+      {"uniform", 725573462893045902u},
+      {"skewed_gaussian", 14386860158422195635u},
+  };
+  for (const auto& [distribution, hash] : expected) {
+    const NoisePipeline pipeline = Build(fmt::format(
+        "modules: [{{name: ghosts, distribution: {}, max_count: 5}}]",
+        distribution));
+    uint64_t h = Fnv1a64("");
+    for (int i = 0; i < 200; ++i) {
+      const MarkerFrame frame = Noisy(pipeline, i);
+      h = Fnv1a64(
+          std::string_view(reinterpret_cast<const char*>(frame.points.data()),
+                           sizeof(float) * frame.points.size()),
+          h);
+      h = Fnv1a64(
+          std::string_view(reinterpret_cast<const char*>(frame.labels.data()),
+                           sizeof(int16_t) * frame.labels.size()),
+          h);
+    }
+    EXPECT_EQ(h, hash) << distribution;
+  }
+}
+
 TEST(NoiseModules, ShiftIsBoundedByM) {
   const NoisePipeline pipeline =
       Build("modules: [{name: shift, fraction: 0.2, max_offset: 0.05}]");
