@@ -348,24 +348,23 @@ std::vector<ReviewRange> LowConfidenceRanges(
     int frames,
     int points,
     int num_labels,
-    double threshold) {
+    double threshold,
+    int max_gap) {
   const size_t n = static_cast<size_t>(frames) * std::max(points, 0);
-  if (frames < 0 || points < 0 || labels.size() != n ||
+  if (frames < 0 || points < 0 || max_gap < 0 || labels.size() != n ||
       confidence.size() != n) {
     throw ShapeError(fmt::format(
-        "review list: {} labels and {} confidences for {} frames x {} points",
+        "review list: {} labels and {} confidences for {} frames x {} points "
+        "(max gap {})",
         labels.size(),
         confidence.size(),
         frames,
-        points));
+        points,
+        max_gap));
   }
   std::vector<ReviewRange> out;
-  // Per label, the open range (first_frame < 0: none).
-  std::vector<ReviewRange> open(num_labels, ReviewRange{0, -1, -1, 1.0});
-  auto close = [&](int label) {
-    if (open[label].first_frame >= 0) out.push_back(open[label]);
-    open[label] = ReviewRange{label, -1, -1, 1.0};
-  };
+  // Per label, the open range (low_frames == 0: none).
+  std::vector<ReviewRange> open(num_labels);
   std::vector<double> low(num_labels);
   for (int t = 0; t < frames; ++t) {
     std::fill(low.begin(), low.end(), 2.0);  // > 1: not low in frame t
@@ -376,17 +375,21 @@ std::vector<ReviewRange> LowConfidenceRanges(
       low[id] = std::min<double>(low[id], confidence[i]);
     }
     for (int id = 0; id < num_labels; ++id) {
-      if (low[id] > 1.0) {
-        close(id);
-        continue;
-      }
+      if (low[id] > 1.0) continue;
       ReviewRange& r = open[id];
-      if (r.first_frame < 0) r = ReviewRange{id, t, t, low[id]};
+      if (r.low_frames > 0 && t - r.last_frame - 1 > max_gap) {
+        out.push_back(r);
+        r = ReviewRange{};
+      }
+      if (r.low_frames == 0) r = ReviewRange{id, t, t, 0, low[id]};
       r.last_frame = t;
+      ++r.low_frames;
       r.min_confidence = std::min(r.min_confidence, low[id]);
     }
   }
-  for (int id = 0; id < num_labels; ++id) close(id);
+  for (const ReviewRange& r : open) {
+    if (r.low_frames > 0) out.push_back(r);
+  }
   std::sort(out.begin(), out.end(), [](const auto& a, const auto& b) {
     return std::tie(a.first_frame, a.label) < std::tie(b.first_frame, b.label);
   });

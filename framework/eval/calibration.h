@@ -172,28 +172,32 @@ void WritePrecisionCoveragePng(const std::vector<CoveragePoint>& curve,
                                const std::filesystem::path& path);
 
 /// One row of the review list: a label whose assignments fell below the
-/// confidence threshold on consecutive frames.
+/// confidence threshold on consecutive frames (or frames at most `max_gap`
+/// apart, LowConfidenceRanges).
 struct ReviewRange {
   int label = 0;        // label id
   int first_frame = 0;  // frame indices (0-based, inclusive)
   int last_frame = 0;
+  int low_frames = 0;         // frames of the range below the threshold
   double min_confidence = 1;  // lowest probability in the range
   bool operator==(const ReviewRange&) const = default;
 };
 
-/// The ranges of consecutive frames where a real label (id < `num_labels`)
-/// was assigned to a point with confidence below `threshold`. `labels` and
-/// `confidence` are `frames x points` row-major (the label each point was
-/// assigned before thresholding, and its probability); null and padding
-/// points (id >= num_labels or < 0) are skipped. Sorted by first frame, then
-/// label.
+/// The ranges of frames where a real label (id < `num_labels`) was assigned
+/// to a point with confidence below `threshold`: consecutive such frames,
+/// and with `max_gap` > 0 also such frames separated by at most `max_gap`
+/// frames without one. `labels` and `confidence` are `frames x points`
+/// row-major (the label each point was assigned before thresholding, and its
+/// probability); null and padding points (id >= num_labels or < 0) are
+/// skipped. Sorted by first frame, then label.
 std::vector<ReviewRange> LowConfidenceRanges(
     const std::vector<int>& labels,
     const std::vector<float>& confidence,
     int frames,
     int points,
     int num_labels,
-    double threshold);
+    double threshold,
+    int max_gap = 0);
 
 /// A fitted temperature stored beside a checkpoint (`calibration.yaml`).
 struct TemperatureCalibration {

@@ -59,6 +59,7 @@ struct LabelEvalOptions {
   std::string checkpoint;  // empty: a bundled model
   std::string model = "auto";
   double min_confidence = 0.0;       // handed to the label task
+  int review_gap = 0;                // handed to the label task
   std::string calibration = "auto";  // handed to the label task
   double target_precision = 0.995;   // for the coverage at this precision
   int num_bins = 15;                 // reliability diagram bins
@@ -81,6 +82,8 @@ LabelEvalOptions DecodeLabelEvalOptions(const ConfigNode& node) {
   reader.Check("min_confidence",
                options.min_confidence >= 0 && options.min_confidence <= 1,
                "0 <= min_confidence <= 1");
+  reader.Read("review_gap", &options.review_gap);
+  reader.Check("review_gap", options.review_gap >= 0, "review_gap >= 0");
   if (const ConfigNode* calibration = node.Find("calibration");
       calibration != nullptr && calibration->IsNull()) {
     reader.Ignore("calibration");
@@ -258,6 +261,7 @@ class LabelEvalTask : public Task {
       label.Set("checkpoint", checkpoint);
       label.Set("tracklet", tracklet);
       label.Set("min_confidence", options_.min_confidence);
+      label.Set("review_gap", options_.review_gap);
       label.Set("calibration", options_.calibration);
       if (options_.inference.IsMap())
         label.Set("inference", options_.inference);

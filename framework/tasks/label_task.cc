@@ -40,10 +40,12 @@
 //    in the raw Sinkhorn row: no renormalisation, no temperature);
 //    attributes `temperature`, `min_confidence`;
 //  - `<stem>_review.csv`: the review list, one row per label and run of
-//    consecutive frames whose assignments fell below task.min_confidence:
-//    `label,first_frame,last_frame,frames,min_confidence` (frame indices
-//    from 0, the first frame of the capture; the lowest probability in the
-//    run), sorted by first frame; only the header when nothing fell below.
+//    consecutive frames whose assignments fell below task.min_confidence
+//    (runs at most task.review_gap frames apart merge):
+//    `label,first_frame,last_frame,frames,low_frames,min_confidence` (frame
+//    indices from 0, the first frame of the capture; the frames of the run
+//    below the threshold; the lowest probability in it), sorted by first
+//    frame; only the header when nothing fell below.
 #include "framework/config/decode.h"
 #include "framework/core/csv.h"
 #include "framework/core/error.h"
@@ -82,6 +84,8 @@ struct LabelOptions {
   bool tracklet = false;
   /// Assigned real labels below this probability become null (0 = off).
   double min_confidence = 0.0;
+  /// Review-list ranges of a label at most this many frames apart merge.
+  int review_gap = 0;
   /// auto | none | a calibration.yaml (ResolveCalibration).
   std::string calibration = "auto";
   InferenceOptions inference;
@@ -363,14 +367,17 @@ class LabelTask : public Task {
         T,
         P,
         static_cast<int>(labels.size()),
-        options_.min_confidence);
-    std::string csv = "label,first_frame,last_frame,frames,min_confidence\n";
+        options_.min_confidence,
+        options_.review_gap);
+    std::string csv =
+        "label,first_frame,last_frame,frames,low_frames,min_confidence\n";
     for (const ReviewRange& r : ranges) {
-      csv += fmt::format("{},{},{},{},{:.4f}\n",
+      csv += fmt::format("{},{},{},{},{},{:.4f}\n",
                          CsvField(labels[r.label]),
                          r.first_frame,
                          r.last_frame,
                          r.last_frame - r.first_frame + 1,
+                         r.low_frames,
                          r.min_confidence);
     }
     WriteFileAtomic(path, csv);
@@ -459,6 +466,8 @@ void RegisterLabelTask(Registry<Task>& registry) {
     reader.Check("min_confidence",
                  options.min_confidence >= 0 && options.min_confidence <= 1,
                  "0 <= min_confidence <= 1");
+    reader.Read("review_gap", &options.review_gap);
+    reader.Check("review_gap", options.review_gap >= 0, "review_gap >= 0");
     if (const ConfigNode* calibration = node.Find("calibration");
         calibration != nullptr && calibration->IsNull()) {
       reader.Ignore("calibration");

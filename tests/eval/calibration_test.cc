@@ -173,7 +173,7 @@ TEST(Calibration, LowConfidenceRangesAreContiguousPerLabel) {
   const std::vector<ReviewRange> ranges =
       LowConfidenceRanges(labels, conf, 6, 2, 3, 0.5);
   ASSERT_EQ(ranges.size(), 3u);
-  EXPECT_EQ(ranges[0], (ReviewRange{0, 1, 2, 0.30000001192092896}));
+  EXPECT_EQ(ranges[0], (ReviewRange{0, 1, 2, 2, 0.30000001192092896}));
   EXPECT_EQ(ranges[1].label, 0);
   EXPECT_EQ(ranges[1].first_frame, 4);
   EXPECT_EQ(ranges[1].last_frame, 4);
@@ -182,6 +182,16 @@ TEST(Calibration, LowConfidenceRangesAreContiguousPerLabel) {
   EXPECT_EQ(ranges[2].first_frame, 5);
   EXPECT_EQ(ranges[2].last_frame, 5);
   EXPECT_TRUE(LowConfidenceRanges(labels, conf, 6, 2, 3, 0.0).empty());
+  // A gap of one frame (frame 3) merges label 0's two ranges.
+  const std::vector<ReviewRange> merged =
+      LowConfidenceRanges(labels, conf, 6, 2, 3, 0.5, /*max_gap=*/1);
+  ASSERT_EQ(merged.size(), 2u);
+  EXPECT_EQ(merged[0].label, 0);
+  EXPECT_EQ(merged[0].first_frame, 1);
+  EXPECT_EQ(merged[0].last_frame, 4);
+  EXPECT_EQ(merged[0].low_frames, 3);
+  EXPECT_NEAR(merged[0].min_confidence, 0.3, 1e-6);
+  EXPECT_EQ(merged[1].label, 2);
   EXPECT_THROW(LowConfidenceRanges(labels, conf, 5, 2, 3, 0.5), ShapeError);
 }
 

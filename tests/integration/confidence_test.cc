@@ -180,7 +180,8 @@ TEST(Confidence, CalibrateThenLabelEvalWithMinConfidence) {
     const std::vector<std::string> review =
         Lines(ReadFile(run / "cmu_01_01_f0-599_review.csv"));
     ASSERT_FALSE(review.empty());
-    EXPECT_EQ(review[0], "label,first_frame,last_frame,frames,min_confidence");
+    EXPECT_EQ(review[0],
+              "label,first_frame,last_frame,frames,low_frames,min_confidence");
     EXPECT_EQ(nulled > 0, review.size() > 1);
     EXPECT_LE(static_cast<int>(review.size()) - 1, nulled);
   }
