@@ -326,7 +326,7 @@ void WritePrecisionCoveragePng(const std::vector<CoveragePoint>& curve,
                                double target,
                                const std::string& title,
                                const fs::path& path) {
-  PlotSeries precision{"precision (one point per threshold)", {}, {}};
+  PlotSeries precision{"precision", {}, {}};
   for (const CoveragePoint& p : curve) {
     if (p.kept == 0) continue;
     precision.x.push_back(p.coverage);

@@ -309,8 +309,8 @@ class LabelEvalTask : public Task {
         "labels the labelling assigned, the share at or above a threshold; "
         "precision: the share of those that are right "
         "(`precision_coverage.csv`, `.png`).\n\n"
-        "| mode | accuracy | mean confidence | ECE (raw Sinkhorn rows) | ECE "
-        "(T) | "
+        "| mode | accuracy (pooled over points) | mean confidence | ECE (raw "
+        "Sinkhorn rows) | ECE (T) | "
         "coverage at >= {:.1f}% precision | at threshold |\n"
         "|---|---|---|---|---|---|---|\n",
         frame.confidence.temperature,
