@@ -129,6 +129,13 @@ class CalibrateTask : public Task {
       SetTorchThreads(static_cast<int>(threads->AsInt()));
     }
     std::string checkpoint = options_.checkpoint;
+    if (checkpoint.empty() &&
+        (options_.model.empty() || options_.model == "auto")) {
+      throw ConfigError(
+          "Invalid configuration. task.checkpoint = null, task.model = "
+          "null. Violated constraint: a checkpoint, or task.model naming a "
+          "bundled model (soma calibrate cmu41)");
+    }
     if (checkpoint.empty()) {
       const BundledChoice choice =
           ChooseInstalledModel(CaptureSummary{}, options_.model);
@@ -337,10 +344,6 @@ void RegisterCalibrateTask(Registry<Task>& registry) {
     if (const ConfigNode* inference = reader.Child("inference")) {
       options.inference = DecodeInferenceOptions(*inference);
     }
-    reader.Check("checkpoint",
-                 !options.checkpoint.empty() ||
-                     (!options.model.empty() && options.model != "auto"),
-                 "a checkpoint, or task.model naming a bundled model");
     reader.Check("frames", options.frames >= 0, "frames >= 0 (0: as trained)");
     reader.Check("num_bins", options.num_bins >= 1, "num_bins >= 1");
     reader.Finish();
