@@ -34,7 +34,8 @@ void CheckTemperature(double temperature) {
 void CheckSamples(const std::vector<float>& log_probs,
                   const std::vector<int>& targets,
                   int cols) {
-  if (cols < 1 || log_probs.size() != targets.size() * size_t(cols)) {
+  if (cols < 1 ||
+      log_probs.size() != targets.size() * static_cast<size_t>(cols)) {
     throw ShapeError(
         fmt::format("temperature fit: {} log-probabilities for {} samples of "
                     "{} columns",

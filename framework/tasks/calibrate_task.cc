@@ -71,6 +71,12 @@ struct CalibrateOptions {
   InferenceOptions inference;
 };
 
+/// Point `n` of a frame's `xyz` is (0,0,0): padding or an occluded marker.
+bool IsMissing(const float* xyz, int n) {
+  const float* p = xyz + 3 * static_cast<ptrdiff_t>(n);
+  return p[0] == 0 && p[1] == 0 && p[2] == 0;
+}
+
 /// The checkpoint's stored training config with `overrides` applied and a
 /// missing layout file replaced by `layout.json` beside the checkpoint.
 ConfigNode TrainingConfig(const CheckpointInfo& info,
@@ -197,8 +203,7 @@ class CalibrateTask : public Task {
       const float* xyz = data.frame_points(t);
       const int16_t* gt = data.frame_labels(t);
       for (int n = 0; n < N; ++n) {
-        if (xyz[3 * n] == 0 && xyz[3 * n + 1] == 0 && xyz[3 * n + 2] == 0)
-          continue;  // padding / occluded
+        if (IsMissing(xyz, n)) continue;  // padding / occluded
         for (int c = 0; c <= L; ++c) {
           log_probs.push_back(static_cast<float>(
               std::log(std::max<double>(p[t][n][c], kMinProbability))));
@@ -225,8 +230,7 @@ class CalibrateTask : public Task {
       for (int64_t t = 0; t < frames; ++t) {
         const float* xyz = data.frame_points(t);
         for (int n = 0; n < N; ++n) {
-          if (xyz[3 * n] == 0 && xyz[3 * n + 1] == 0 && xyz[3 * n + 2] == 0)
-            continue;
+          if (IsMissing(xyz, n)) continue;
           for (int c = 0; c <= L; ++c) row[c] = p[t][n][c];
           ApplyTemperature(row.data(), 1, L + 1, 1.0);
           conf_t1[i] = row[ids[t][n]];

@@ -416,21 +416,22 @@ class LabelTask : public Task {
     auto proposed_ids = conf.proposed_ids.accessor<int64_t, 2>();
     auto proposed = conf.proposed.accessor<float, 2>();
     auto uncalibrated = conf.uncalibrated.accessor<float, 2>();
-    std::vector<float> confidences(size_t(T) * P, 0.0f);
-    std::vector<float> columns(size_t(T) * P, -1.0f);
-    std::vector<float> proposed_labels(size_t(T) * P, 0.0f);
-    std::vector<float> proposed_confidences(size_t(T) * P, 0.0f);
-    std::vector<float> uncalibrated_confidences(size_t(T) * P, 0.0f);
+    const size_t n = static_cast<size_t>(T) * P;
+    std::vector<float> confidences(n, 0.0f);
+    std::vector<float> columns(n, -1.0f);
+    std::vector<float> proposed_labels(n, 0.0f);
+    std::vector<float> proposed_confidences(n, 0.0f);
+    std::vector<float> uncalibrated_confidences(n, 0.0f);
     for (int t = 0; t < T; ++t) {
       for (int p = 0; p < P; ++p) {
         frames.frame_labels(t)[p] = static_cast<int16_t>(ids[t][p]);
-        const size_t i = size_t(t) * P + p;
+        const size_t i = static_cast<size_t>(t) * P + p;
         confidences[i] = assigned[t][p];
         proposed_labels[i] = static_cast<float>(proposed_ids[t][p]);
         proposed_confidences[i] = proposed[t][p];
         uncalibrated_confidences[i] = uncalibrated[t][p];
         if (p < static_cast<int>(packed.columns[t].size())) {
-          columns[size_t(t) * P + p] = float(packed.columns[t][p]);
+          columns[i] = static_cast<float>(packed.columns[t][p]);
         }
       }
     }

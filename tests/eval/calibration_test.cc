@@ -28,7 +28,7 @@ std::vector<float> SyntheticLogits(int samples,
                                    uint64_t seed,
                                    std::vector<int>* targets) {
   Rng rng(seed);
-  std::vector<float> log_probs(size_t(samples) * cols);
+  std::vector<float> log_probs(static_cast<size_t>(samples) * cols);
   targets->resize(samples);
   std::vector<double> z(cols), p(cols);
   for (int i = 0; i < samples; ++i) {
@@ -41,7 +41,7 @@ std::vector<float> SyntheticLogits(int samples,
       sum_t += p[c];
     }
     for (int c = 0; c < cols; ++c) {
-      log_probs[size_t(i) * cols + c] =
+      log_probs[static_cast<size_t>(i) * cols + c] =
           static_cast<float>(z[c] - max_z - std::log(sum));
     }
     double u = rng.Uniform() * sum_t;
@@ -78,8 +78,9 @@ TEST(Calibration, FitRecoversTheTemperatureOfSyntheticLogits) {
 TEST(Calibration, MeanNllByHand) {
   // One sample, p = (0.5, 0.25, 0.25), target 1: NLL log 4 at T = 1; at
   // T = 0.5 the row becomes (1/4, 1/16, 1/16) / (6/16) -> p1 = 1/6.
-  const std::vector<float> lp = {
-      float(std::log(0.5)), float(std::log(0.25)), float(std::log(0.25))};
+  const std::vector<float> lp = {static_cast<float>(std::log(0.5)),
+                                 static_cast<float>(std::log(0.25)),
+                                 static_cast<float>(std::log(0.25))};
   EXPECT_NEAR(MeanNll(lp, {1}, 3, 1.0), std::log(4.0), 1e-6);
   EXPECT_NEAR(MeanNll(lp, {1}, 3, 0.5), std::log(6.0), 1e-6);
   EXPECT_THROW(MeanNll(lp, {3}, 3, 1.0), ShapeError);
@@ -101,8 +102,9 @@ TEST(Calibration, ApplyTemperatureKeepsTheArgmaxAndMatchesTheFit) {
   EXPECT_GT(t2[5], t2[4]);
   EXPECT_NEAR(t2[3] + t2[4] + t2[5], 1.0, 1e-6);
   // The same transform MeanNll scores.
-  const std::vector<float> lp = {
-      float(std::log(0.7)), float(std::log(0.2)), float(std::log(0.1))};
+  const std::vector<float> lp = {static_cast<float>(std::log(0.7)),
+                                 static_cast<float>(std::log(0.2)),
+                                 static_cast<float>(std::log(0.1))};
   EXPECT_NEAR(MeanNll(lp, {0}, 3, 2.0), -std::log(t2[0]), 1e-6);
   EXPECT_THROW(ApplyTemperature(t2.data(), 2, 3, 0.0), ConfigError);
 }
@@ -136,6 +138,7 @@ TEST(Calibration, ReliabilityAndEceOfConstructedBins) {
 TEST(Calibration, PrecisionCoverageCurveAndCoverageAtPrecision) {
   // Confidences 0.99 .. 0.90 (10 predictions); the two lowest are wrong.
   std::vector<ThresholdedPrediction> preds;
+  preds.reserve(10);
   for (int i = 0; i < 10; ++i) preds.push_back({0.99 - 0.01 * i, i < 8});
   const std::vector<CoveragePoint> curve =
       PrecisionCoverageCurve(preds, {0.0, 0.915, 0.95, 1.0});
