@@ -216,13 +216,8 @@ class LabelTask : public Task {
     const double seconds = timer.ElapsedSeconds();
     at::Tensor label_ids = at::cat(ids);
     const at::Tensor predicted_ids = at::cat(predicted);
-    const at::Tensor uncalibrated = at::cat(confidence);
-    // Rows renormalised and temperature scaled (T = 1 without calibration).
-    at::Tensor probabilities = uncalibrated.clone().contiguous();
-    ApplyTemperature(probabilities.data_ptr<float>(),
-                     int64_t{T} * P,
-                     num_labels + 1,
-                     calibration.temperature);
+    at::Tensor probabilities = at::cat(confidence).contiguous();
+    confidence.clear();
     const at::Tensor valid = points.abs().sum(-1) > 0;
     if (options_.tracklet) {
       label_ids = ResolveDuplicateLabels(
@@ -233,12 +228,18 @@ class LabelTask : public Task {
     auto probability_of = [](const at::Tensor& probs, const at::Tensor& ids) {
       return probs.gather(2, ids.unsqueeze(-1)).squeeze(-1);
     };
-    // task.min_confidence: low-confidence real labels become null.
     Confidences conf;
     conf.proposed_ids = label_ids;
+    conf.uncalibrated = probability_of(probabilities, label_ids);
+    // Rows renormalised and temperature scaled (T = 1 without calibration),
+    // in place.
+    ApplyTemperature(probabilities.data_ptr<float>(),
+                     int64_t{T} * P,
+                     num_labels + 1,
+                     calibration.temperature);
     conf.proposed = probability_of(probabilities, label_ids);
-    conf.uncalibrated = probability_of(uncalibrated, label_ids);
     conf.temperature = calibration.temperature;
+    // task.min_confidence: low-confidence real labels become null.
     const at::Tensor below =
         (label_ids < num_labels) & (conf.proposed < options_.min_confidence);
     label_ids = label_ids.masked_fill(below, num_labels);
