@@ -31,9 +31,10 @@ int main(int argc, char** argv) {
   if (!args.empty() && soma::GetRegistry<soma::Task>().Has(args.front())) {
     // A command's main input may be given positionally:
     // `soma reproduce table5`, `soma solve take.c3d`, `soma label take.c3d`,
-    // `soma fit_layout take.c3d`.
+    // `soma fit_layout take.c3d`, `soma calibrate cmu41`.
     static const std::map<std::string, std::string> kPositional = {
         {"reproduce", "ablation"},
+        {"calibrate", "model"},
         {"solve", "input"},
         {"label", "input"},
         {"fit_layout", "input"},

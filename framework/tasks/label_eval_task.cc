@@ -18,11 +18,24 @@
 //    of both modes and the labelling rate; metrics.yaml has them as
 //    `per_frame_acc`, `per_frame_f1`, `tracklet_acc`, `tracklet_f1`,
 //    `frames_per_s`.
+// 5. Confidence (issue #25 item 4): from each mode's `_labels.h5` and the
+//    ground truth, `reliability.csv`/`.png` (the probability of each
+//    point's label before task.min_confidence against whether it is right,
+//    15 equal-width bins; series `raw`: the raw Sinkhorn rows, `T=<t>`: the
+//    rows renormalised at the temperature of the checkpoint's
+//    calibration.yaml, 1 without one) and `precision_coverage.csv`/`.png`
+//    (over thresholds: of the real labels the labelling assigned, the share
+//    kept (coverage) and the share of those right (precision)); metrics
+//    `<mode>_ece` (at T), `<mode>_ece_raw`, `<mode>_coverage_at_precision`
+//    (the largest coverage at precision >= task.target_precision) and
+//    `<mode>_threshold_at_precision`, and a table in summary.md.
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
 #include "framework/core/timer.h"
+#include "framework/eval/calibration.h"
+#include "framework/io/mocap_dataset.h"
 #include "framework/registry/registry.h"
 #include "framework/synth/corruption.h"
 #include "framework/tasks/task.h"
@@ -31,6 +44,7 @@
 
 #include <fmt/format.h>
 
+#include <cmath>
 #include <filesystem>
 #include <map>
 
@@ -44,7 +58,12 @@ struct LabelEvalOptions {
   std::string setting = "OC_05_G_03_BT_00";
   std::string checkpoint;  // empty: a bundled model
   std::string model = "auto";
-  ConfigNode inference;  // handed to the label task as it is
+  double min_confidence = 0.0;       // handed to the label task
+  int review_gap = 0;                // handed to the label task
+  std::string calibration = "auto";  // handed to the label task
+  double target_precision = 0.995;   // for the coverage at this precision
+  int num_bins = 15;                 // reliability diagram bins
+  ConfigNode inference;              // handed to the label task as it is
 };
 
 LabelEvalOptions DecodeLabelEvalOptions(const ConfigNode& node) {
@@ -59,6 +78,25 @@ LabelEvalOptions DecodeLabelEvalOptions(const ConfigNode& node) {
     reader.Read("checkpoint", &options.checkpoint);
   }
   reader.Read("model", &options.model);
+  reader.Read("min_confidence", &options.min_confidence);
+  reader.Check("min_confidence",
+               options.min_confidence >= 0 && options.min_confidence <= 1,
+               "0 <= min_confidence <= 1");
+  reader.Read("review_gap", &options.review_gap);
+  reader.Check("review_gap", options.review_gap >= 0, "review_gap >= 0");
+  if (const ConfigNode* calibration = node.Find("calibration");
+      calibration != nullptr && calibration->IsNull()) {
+    reader.Ignore("calibration");
+    options.calibration = "none";
+  } else {
+    reader.Read("calibration", &options.calibration);
+  }
+  reader.Read("target_precision", &options.target_precision);
+  reader.Check("target_precision",
+               options.target_precision > 0 && options.target_precision <= 1,
+               "0 < target_precision <= 1");
+  reader.Read("num_bins", &options.num_bins);
+  reader.Check("num_bins", options.num_bins >= 1, "num_bins >= 1");
   if (const ConfigNode* inference = reader.Child("inference")) {
     options.inference = *inference;
   }
@@ -67,12 +105,91 @@ LabelEvalOptions DecodeLabelEvalOptions(const ConfigNode& node) {
   return options;
 }
 
+/// How far one labelling's confidences can be trusted.
+struct ConfidenceResult {
+  double temperature = 1.0;
+  Reliability uncalibrated;  // the raw Sinkhorn rows
+  Reliability calibrated;    // renormalised at the labelling's temperature
+  CoveragePoint at_precision;
+  int64_t predictions = 0;  // real labels assigned before min_confidence
+};
+
 /// The results of one labelling mode.
 struct ModeResult {
   std::string mode;  // per_frame | tracklet
   std::map<std::string, double> metrics;
   fs::path dir;
+  ConfidenceResult confidence;
 };
+
+/// Scores the confidences of a `soma label` sidecar against the ground truth
+/// of the corrupted take it labelled (the sidecar's `column` is the take's
+/// column, whose per-frame ground-truth id `truth` holds), and writes the
+/// reliability and precision/coverage CSVs and PNGs into `dir`.
+ConfidenceResult AnalyzeConfidence(const fs::path& sidecar,
+                                   const LabeledSequence& truth,
+                                   const std::string& mode,
+                                   const LabelEvalOptions& options,
+                                   const fs::path& dir) {
+  const DatasetReader reader(sidecar);
+  const int T = static_cast<int>(reader.num_frames());
+  const int P = reader.info().num_points;
+  const int L = reader.info().num_labels();
+  if (T != truth.num_frames() || L != truth.null_label()) {
+    throw InternalError(
+        fmt::format("{}: {} frames and {} labels, the ground truth {} and {}",
+                    sidecar.string(),
+                    T,
+                    L,
+                    truth.num_frames(),
+                    truth.null_label()));
+  }
+  const std::vector<float> column = reader.ReadPointArray("column");
+  const std::vector<float> proposed = reader.ReadPointArray("proposed_label");
+  const std::vector<float> calibrated =
+      reader.ReadPointArray("proposed_confidence");
+  const std::vector<float> uncalibrated =
+      reader.ReadPointArray("uncalibrated_confidence");
+  ConfidenceResult r;
+  if (auto it = reader.info().attributes.find("temperature");
+      it != reader.info().attributes.end()) {
+    r.temperature = std::stod(it->second);
+  }
+  std::vector<double> conf_t1, conf_t;
+  std::vector<bool> correct;
+  std::vector<ThresholdedPrediction> predictions;
+  for (int t = 0; t < T; ++t) {
+    const int16_t* gt = truth.frames.frame_labels(t);
+    for (int p = 0; p < P; ++p) {
+      const size_t i = static_cast<size_t>(t) * P + p;
+      if (column[i] < 0) continue;  // padding
+      const int id = static_cast<int>(proposed[i]);
+      const bool ok = id == gt[static_cast<int>(column[i])];
+      conf_t1.push_back(uncalibrated[i]);
+      conf_t.push_back(calibrated[i]);
+      correct.push_back(ok);
+      if (id < L) predictions.push_back({calibrated[i], ok});
+    }
+  }
+  r.uncalibrated = ComputeReliability(conf_t1, correct, options.num_bins);
+  r.calibrated = ComputeReliability(conf_t, correct, options.num_bins);
+  r.at_precision = CoverageAtPrecision(predictions, options.target_precision);
+  r.predictions = static_cast<int64_t>(predictions.size());
+  const std::vector<NamedReliability> diagrams = {
+      {"raw", r.uncalibrated},
+      {fmt::format("T={:.3f}", r.temperature), r.calibrated}};
+  WriteFileAtomic(dir / "reliability.csv", ReliabilityCsv(diagrams));
+  WriteReliabilityPng(
+      diagrams, fmt::format("{}: reliability", mode), dir / "reliability.png");
+  const std::vector<CoveragePoint> curve =
+      PrecisionCoverageCurve(predictions, DefaultThresholds());
+  WriteFileAtomic(dir / "precision_coverage.csv", PrecisionCoverageCsv(curve));
+  WritePrecisionCoveragePng(curve,
+                            options.target_precision,
+                            fmt::format("{}: precision/coverage", mode),
+                            dir / "precision_coverage.png");
+  return r;
+}
 
 class LabelEvalTask : public Task {
  public:
@@ -143,6 +260,9 @@ class LabelEvalTask : public Task {
       label.Set("input", corrupted_c3d.string());
       label.Set("checkpoint", checkpoint);
       label.Set("tracklet", tracklet);
+      label.Set("min_confidence", options_.min_confidence);
+      label.Set("review_gap", options_.review_gap);
+      label.Set("calibration", options_.calibration);
       if (options_.inference.IsMap())
         label.Set("inference", options_.inference);
       RunSubTask(label, cfg, sub);
@@ -154,6 +274,11 @@ class LabelEvalTask : public Task {
       RunSubTask(eval, cfg, sub);
       r.metrics = sub.metrics();
       r.metrics["frames_per_s"] = fps;
+      r.confidence = AnalyzeConfidence(r.dir / (clean.name + "_labels.h5"),
+                                       corrupted,
+                                       r.mode,
+                                       options_,
+                                       r.dir);
       results.push_back(std::move(r));
     }
 
@@ -163,9 +288,54 @@ class LabelEvalTask : public Task {
     for (const ModeResult& r : results) {
       ctx.ReportMetric(r.mode + "_acc", r.metrics.at("acc_mean"));
       ctx.ReportMetric(r.mode + "_f1", r.metrics.at("f1_mean"));
+      const ConfidenceResult& c = r.confidence;
+      ctx.ReportMetric(r.mode + "_ece", c.calibrated.ece);
+      ctx.ReportMetric(r.mode + "_ece_raw", c.uncalibrated.ece);
+      ctx.ReportMetric(r.mode + "_coverage_at_precision",
+                       c.at_precision.coverage);
+      ctx.ReportMetric(r.mode + "_threshold_at_precision",
+                       std::isfinite(c.at_precision.threshold)
+                           ? c.at_precision.threshold
+                           : 1.0);
     }
+    ctx.ReportMetric("temperature", frame.confidence.temperature);
     ctx.ReportMetric("frames", clean.num_frames());
     ctx.ReportMetric("frames_per_s", frame.metrics.at("frames_per_s"));
+    std::string confidence_md = fmt::format(
+        "\n## Confidence\n\nTemperature {:.4f} ({}). Calibration: each "
+        "point's label before `task.min_confidence` (= {}) against the "
+        "ground truth, {} equal-width bins (`reliability.csv`, "
+        "`reliability.png` in each mode's directory). Coverage: of the real "
+        "labels the labelling assigned, the share at or above a threshold; "
+        "precision: the share of those that are right "
+        "(`precision_coverage.csv`, `.png`).\n\n"
+        "| mode | accuracy (pooled over points) | mean confidence | ECE (raw "
+        "Sinkhorn rows) | ECE (T) | "
+        "coverage at >= {:.1f}% precision | at threshold |\n"
+        "|---|---|---|---|---|---|---|\n",
+        frame.confidence.temperature,
+        frame.confidence.temperature == 1.0 ? "no calibration.yaml applied"
+                                            : "the checkpoint's "
+                                              "calibration.yaml",
+        options_.min_confidence,
+        options_.num_bins,
+        100 * options_.target_precision);
+    for (const ModeResult& r : results) {
+      const ConfidenceResult& c = r.confidence;
+      confidence_md += fmt::format(
+          "| {} | {:.2f}% | {:.4f} | {:.4f} | {:.4f} | {:.2f}% of {} | {} "
+          "|\n",
+          r.mode,
+          100 * c.calibrated.accuracy,
+          c.calibrated.mean_confidence,
+          c.uncalibrated.ece,
+          c.calibrated.ece,
+          100 * c.at_precision.coverage,
+          c.predictions,
+          std::isfinite(c.at_precision.threshold)
+              ? fmt::format("{:.4f}", c.at_precision.threshold)
+              : std::string("none reaches it"));
+    }
     const std::string md = fmt::format(
         "# label_eval: {}\n\n"
         "- **Take:** `{}` ({} frames at {:g} Hz, {} labels of the "
@@ -207,7 +377,7 @@ class LabelEvalTask : public Task {
         100 * track.metrics.at("f1_std"),
         track.metrics.at("frames_per_s"),
         total.ElapsedSeconds());
-    WriteFileAtomic(ctx.output_dir / "summary.md", md);
+    WriteFileAtomic(ctx.output_dir / "summary.md", md + confidence_md);
     for (const ModeResult& r : results) {
       SOMA_LOG(INFO,
                "label_eval: {:<9} accuracy {:.2f} ± {:.2f}%, F1 {:.2f} ± "
@@ -219,6 +389,14 @@ class LabelEvalTask : public Task {
                100 * r.metrics.at("f1_std"),
                clean.num_frames(),
                r.metrics.at("frames_per_s"));
+      SOMA_LOG(INFO,
+               "label_eval: {:<9} ECE {:.4f} (raw rows: {:.4f}); coverage "
+               "{:.2f}% at >= {:.1f}% precision",
+               r.mode,
+               r.confidence.calibrated.ece,
+               r.confidence.uncalibrated.ece,
+               100 * r.confidence.at_precision.coverage,
+               100 * options_.target_precision);
     }
     SOMA_LOG(INFO,
              "label_eval: outputs in {} (summary.md; per_frame/ and "

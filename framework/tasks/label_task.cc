@@ -5,6 +5,7 @@
 //   soma label ... task.tracklet=true      # majority vote per trajectory
 //   soma label take.c3d                    # a bundled model (models/)
 //   soma label take.c3d task.model=hdm05   # that bundled model
+//   soma label take.c3d task.min_confidence=0.9   # null below 0.9, review list
 //
 // Without a checkpoint the bundled model whose labels match the capture's
 // is used (framework/train/model_zoo.h), and the log says which and why.
@@ -16,6 +17,15 @@
 // input trajectory (C3D column) its most frequent per-frame prediction, null
 // votes included, and applies the same-frame duplicate rule again.
 //
+// Confidence (issue #25 item 4; framework/eval/calibration.h). With a
+// `calibration.yaml` fitted for the checkpoint (`soma calibrate`), found by
+// `task.calibration` (auto: beside the checkpoint), every point's label
+// distribution is temperature scaled, softmax(log p / T): the labels do not
+// change, the confidences do. Without one T = 1, which still renormalises
+// the rows (Sinkhorn leaves them summing to 0.8-1.03). Then an assigned real
+// label whose probability is below `task.min_confidence` becomes null, and the
+// frame ranges where that happened are listed per label in the review list.
+//
 // Outputs in the run directory:
 //  - `<stem>_labeled.c3d`: the L labelled trajectories (model label order)
 //    followed by the most null points of any frame as `*<k>` trajectories;
@@ -23,13 +33,27 @@
 //  - `<stem>_labels.h5`: a soma dataset (docs/dataset_format.md): the packed
 //    points (metres) and each point's final label id, plus the attributes
 //    `source`, `checkpoint`, `mode` and per point, as extra datasets,
-//    `confidence` (probability of the assigned class) and `column` (input
-//    trajectory index, -1 for padding).
+//    `confidence` (probability of the assigned class), `column` (input
+//    trajectory index, -1 for padding), `proposed_label` (the label before
+//    task.min_confidence), `proposed_confidence` (its probability, after
+//    temperature scaling) and `uncalibrated_confidence` (its probability
+//    in the raw Sinkhorn row: no renormalisation, no temperature);
+//    attributes `temperature`, `min_confidence`;
+//  - `<stem>_review.csv`: the review list, one row per label and run of
+//    consecutive frames whose assignments fell below task.min_confidence
+//    (runs at most task.review_gap frames apart merge):
+//    `label,first_frame,last_frame,frames,low_frames,min_confidence` (frame
+//    indices from 0, the first frame of the capture; the frames of the run
+//    below the threshold; the lowest probability in it), sorted by first
+//    frame; only the header when nothing fell below.
 #include "framework/config/decode.h"
+#include "framework/core/csv.h"
 #include "framework/core/error.h"
+#include "framework/core/file.h"
 #include "framework/core/logging.h"
 #include "framework/core/progress.h"
 #include "framework/core/timer.h"
+#include "framework/eval/calibration.h"
 #include "framework/io/c3d.h"
 #include "framework/io/mocap_dataset.h"
 #include "framework/model/inference.h"
@@ -58,6 +82,12 @@ struct LabelOptions {
   std::string checkpoint;      // empty: a bundled model
   std::string model = "auto";  // a bundled model's name, or auto
   bool tracklet = false;
+  /// Assigned real labels below this probability become null (0 = off).
+  double min_confidence = 0.0;
+  /// Review-list ranges of a label at most this many frames apart merge.
+  int review_gap = 0;
+  /// auto | none | a calibration.yaml (ResolveCalibration).
+  std::string calibration = "auto";
   InferenceOptions inference;
 };
 
@@ -137,6 +167,9 @@ class LabelTask : public Task {
     }
     const CheckpointInfo info = ReadCheckpointInfo(options_.checkpoint);
     Labeler model = LoadLabelerFromCheckpoint(options_.checkpoint);
+    const CalibrationChoice calibration =
+        ResolveCalibration(options_.calibration, options_.checkpoint);
+    SOMA_LOG(INFO, "label: {}", calibration.reason);
     const int64_t num_labels = static_cast<int64_t>(info.labels.size());
 
     if (c3d.num_frames == 0) {
@@ -183,7 +216,8 @@ class LabelTask : public Task {
     const double seconds = timer.ElapsedSeconds();
     at::Tensor label_ids = at::cat(ids);
     const at::Tensor predicted_ids = at::cat(predicted);
-    const at::Tensor probabilities = at::cat(confidence);
+    at::Tensor probabilities = at::cat(confidence).contiguous();
+    confidence.clear();
     const at::Tensor valid = points.abs().sum(-1) > 0;
     if (options_.tracklet) {
       label_ids = ResolveDuplicateLabels(
@@ -191,8 +225,26 @@ class LabelTask : public Task {
           valid,
           num_labels);
     }
+    auto probability_of = [](const at::Tensor& probs, const at::Tensor& ids) {
+      return probs.gather(2, ids.unsqueeze(-1)).squeeze(-1);
+    };
+    Confidences conf;
+    conf.proposed_ids = label_ids;
+    conf.uncalibrated = probability_of(probabilities, label_ids);
+    // Rows renormalised and temperature scaled (T = 1 without calibration),
+    // in place.
+    ApplyTemperature(probabilities.data_ptr<float>(),
+                     int64_t{T} * P,
+                     num_labels + 1,
+                     calibration.temperature);
+    conf.proposed = probability_of(probabilities, label_ids);
+    conf.temperature = calibration.temperature;
+    // task.min_confidence: low-confidence real labels become null.
+    const at::Tensor below =
+        (label_ids < num_labels) & (conf.proposed < options_.min_confidence);
+    label_ids = label_ids.masked_fill(below, num_labels);
     const at::Tensor assigned_confidence =
-        probabilities.gather(2, label_ids.unsqueeze(-1)).squeeze(-1);
+        probability_of(probabilities, label_ids);
 
     const std::string stem = fs::path(options_.input).stem().string();
     WriteLabeledC3d(c3d,
@@ -204,9 +256,12 @@ class LabelTask : public Task {
                  packed,
                  label_ids,
                  assigned_confidence,
+                 conf,
                  info,
                  c3d,
                  ctx.output_dir / (stem + "_labels.h5"));
+    const int num_ranges = WriteReviewList(
+        conf, info.labels, ctx.output_dir / (stem + "_review.csv"));
 
     // Summary metrics: how much was labelled and how fast.
     const double fps = T / std::max(seconds, 1e-9);
@@ -218,6 +273,19 @@ class LabelTask : public Task {
     ctx.ReportMetric("points", static_cast<double>(num_points));
     ctx.ReportMetric("null_fraction",
                      num_points > 0 ? double(num_null) / num_points : 0.0);
+    const int64_t num_below = below.sum().item<int64_t>();
+    ctx.ReportMetric("below_min_confidence", static_cast<double>(num_below));
+    ctx.ReportMetric("review_ranges", num_ranges);
+    ctx.ReportMetric("temperature", calibration.temperature);
+    if (options_.min_confidence > 0) {
+      SOMA_LOG(INFO,
+               "label: {} assignments below task.min_confidence={} became "
+               "null; {} ranges to review in {}_review.csv",
+               num_below,
+               options_.min_confidence,
+               num_ranges,
+               stem);
+    }
     SOMA_LOG(INFO,
              "label: {} frames x {} points, {:.0f} frames/s ({} mode), "
              "{:.1f}% null; wrote {}_labeled.c3d and {}_labels.h5",
@@ -275,10 +343,53 @@ class LabelTask : public Task {
     WriteC3d(path, out);
   }
 
+  /// The labels before task.min_confidence and their probabilities
+  /// (`T x P`).
+  struct Confidences {
+    at::Tensor proposed_ids;  // int64
+    at::Tensor proposed;      // float, after temperature scaling
+    at::Tensor uncalibrated;  // float, without it
+    double temperature = 1.0;
+  };
+
+  /// `<stem>_review.csv`; returns the number of ranges.
+  int WriteReviewList(const Confidences& conf,
+                      const std::vector<std::string>& labels,
+                      const fs::path& path) const {
+    const int T = static_cast<int>(conf.proposed_ids.size(0));
+    const int P = static_cast<int>(conf.proposed_ids.size(1));
+    const at::Tensor ids = conf.proposed_ids.to(at::kInt).contiguous();
+    const at::Tensor probs = conf.proposed.contiguous();
+    const std::vector<ReviewRange> ranges = LowConfidenceRanges(
+        std::vector<int>(ids.data_ptr<int>(),
+                         ids.data_ptr<int>() + ids.numel()),
+        std::vector<float>(probs.data_ptr<float>(),
+                           probs.data_ptr<float>() + probs.numel()),
+        T,
+        P,
+        static_cast<int>(labels.size()),
+        options_.min_confidence,
+        options_.review_gap);
+    std::string csv =
+        "label,first_frame,last_frame,frames,low_frames,min_confidence\n";
+    for (const ReviewRange& r : ranges) {
+      csv += fmt::format("{},{},{},{},{},{:.4f}\n",
+                         CsvField(labels[r.label]),
+                         r.first_frame,
+                         r.last_frame,
+                         r.last_frame - r.first_frame + 1,
+                         r.low_frames,
+                         r.min_confidence);
+    }
+    WriteFileAtomic(path, csv);
+    return static_cast<int>(ranges.size());
+  }
+
   void WriteSidecar(const at::Tensor& points,
                     const PackedPoints& packed,
                     const at::Tensor& label_ids,
                     const at::Tensor& confidence,
+                    const Confidences& conf,
                     const CheckpointInfo& info,
                     const C3dData& c3d,
                     const fs::path& path) const {
@@ -292,6 +403,9 @@ class LabelTask : public Task {
     meta.attributes["source"] = options_.input;
     meta.attributes["checkpoint"] = options_.checkpoint;
     meta.attributes["mode"] = options_.tracklet ? "tracklet" : "per_frame";
+    meta.attributes["temperature"] = fmt::format("{}", conf.temperature);
+    meta.attributes["min_confidence"] =
+        fmt::format("{}", options_.min_confidence);
     LabeledFrames frames;
     frames.Resize(T, P);
     const at::Tensor contiguous = points.contiguous();
@@ -299,15 +413,26 @@ class LabelTask : public Task {
                 frames.points.size(),
                 frames.points.data());
     auto ids = label_ids.accessor<int64_t, 2>();
-    auto conf = confidence.accessor<float, 2>();
-    std::vector<float> confidences(size_t(T) * P, 0.0f);
-    std::vector<float> columns(size_t(T) * P, -1.0f);
+    auto assigned = confidence.accessor<float, 2>();
+    auto proposed_ids = conf.proposed_ids.accessor<int64_t, 2>();
+    auto proposed = conf.proposed.accessor<float, 2>();
+    auto uncalibrated = conf.uncalibrated.accessor<float, 2>();
+    const size_t n = static_cast<size_t>(T) * P;
+    std::vector<float> confidences(n, 0.0f);
+    std::vector<float> columns(n, -1.0f);
+    std::vector<float> proposed_labels(n, 0.0f);
+    std::vector<float> proposed_confidences(n, 0.0f);
+    std::vector<float> uncalibrated_confidences(n, 0.0f);
     for (int t = 0; t < T; ++t) {
       for (int p = 0; p < P; ++p) {
         frames.frame_labels(t)[p] = static_cast<int16_t>(ids[t][p]);
-        confidences[size_t(t) * P + p] = conf[t][p];
+        const size_t i = static_cast<size_t>(t) * P + p;
+        confidences[i] = assigned[t][p];
+        proposed_labels[i] = static_cast<float>(proposed_ids[t][p]);
+        proposed_confidences[i] = proposed[t][p];
+        uncalibrated_confidences[i] = uncalibrated[t][p];
         if (p < static_cast<int>(packed.columns[t].size())) {
-          columns[size_t(t) * P + p] = float(packed.columns[t][p]);
+          columns[i] = static_cast<float>(packed.columns[t][p]);
         }
       }
     }
@@ -315,6 +440,9 @@ class LabelTask : public Task {
     writer.Append(frames);
     writer.WritePointArray("confidence", confidences);
     writer.WritePointArray("column", columns);
+    writer.WritePointArray("proposed_label", proposed_labels);
+    writer.WritePointArray("proposed_confidence", proposed_confidences);
+    writer.WritePointArray("uncalibrated_confidence", uncalibrated_confidences);
     writer.Close();
   }
 
@@ -336,6 +464,19 @@ void RegisterLabelTask(Registry<Task>& registry) {
     }
     reader.Read("model", &options.model);
     reader.Read("tracklet", &options.tracklet);
+    reader.Read("min_confidence", &options.min_confidence);
+    reader.Check("min_confidence",
+                 options.min_confidence >= 0 && options.min_confidence <= 1,
+                 "0 <= min_confidence <= 1");
+    reader.Read("review_gap", &options.review_gap);
+    reader.Check("review_gap", options.review_gap >= 0, "review_gap >= 0");
+    if (const ConfigNode* calibration = node.Find("calibration");
+        calibration != nullptr && calibration->IsNull()) {
+      reader.Ignore("calibration");
+      options.calibration = "none";
+    } else {
+      reader.Read("calibration", &options.calibration);
+    }
     if (const ConfigNode* inference = reader.Child("inference")) {
       options.inference = DecodeInferenceOptions(*inference);
     }

@@ -7,6 +7,7 @@ namespace soma {
 
 // Each task registers itself from its own file.
 void RegisterAttentionSpanTask(Registry<Task>& registry);
+void RegisterCalibrateTask(Registry<Task>& registry);
 void RegisterCorruptTask(Registry<Task>& registry);
 void RegisterCoverageTask(Registry<Task>& registry);
 void RegisterDemoTask(Registry<Task>& registry);
@@ -29,6 +30,7 @@ void RegisterViewTask(Registry<Task>& registry);
 void RegisterTasks() {
   Registry<Task>& registry = GetRegistry<Task>();
   RegisterAttentionSpanTask(registry);
+  RegisterCalibrateTask(registry);
   RegisterCorruptTask(registry);
   RegisterCoverageTask(registry);
   RegisterDemoTask(registry);

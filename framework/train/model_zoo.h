@@ -9,6 +9,8 @@
 //   markers.csv optional (the card's `markers`): its training layout's
 //               markers on the mean body, standing (`soma inspect`'s
 //               markers.csv: label,vertex_id,x,y,z in metres).
+//   calibration.yaml optional: the temperature of its confidences
+//               (`soma calibrate <name>`, framework/eval/calibration.h).
 // `soma label take.c3d` without `task.checkpoint` picks the bundled model
 // whose labels match the capture's (ChooseBundledModel).
 #pragma once
