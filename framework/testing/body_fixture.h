@@ -1,5 +1,6 @@
-// Shared test fixtures: bodies built once per test process (building the
-// procedural body costs ~0.2 s in Release, several seconds in Debug).
+// Shared test fixtures (soma_testing_body: links soma::body, for the tests of
+// body and the modules above it): bodies built once per test process (building
+// the procedural body costs ~0.2 s in Release, several seconds in Debug).
 #pragma once
 
 #include "framework/body/body_model.h"

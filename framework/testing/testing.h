@@ -1,4 +1,5 @@
-// Test helpers shared by every test executable (test-only library).
+// Test helpers shared by every test executable (soma_testing: a test-only
+// library that links soma::core and GoogleTest, nothing above core).
 #pragma once
 
 #include <gtest/gtest.h>

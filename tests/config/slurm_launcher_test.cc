@@ -37,8 +37,9 @@ ConfigNode DemoLauncher(std::vector<std::string> overrides) {
   for (const std::string& o : overrides) {
     request.overrides.push_back(ParseOverride(o));
   }
-  const ConfigNode root = Resolve(Compose(request).root, DefaultResolvers());
-  return root.at("hydra").at("launcher");
+  // Only the launcher is resolved: the rest of demo.yaml uses
+  // ${soma.sweep_id:}, a resolver of the framework (not linked here).
+  return Select(Compose(request).root, "hydra.launcher", DefaultResolvers());
 }
 
 SbatchScriptSpec Spec(const fs::path& sweep_dir, const std::string& exe) {
