@@ -1,7 +1,8 @@
 // The embedded procedural human body: a BodyModel generated entirely by code
 // (no downloads, no licence), the default body of the framework.
 //
-// Construction (see procedural_body.cc for the numbers and their sources):
+// Construction (see procedural_body.cc for the numbers and their sources,
+// mesh_builder.h for the primitives and the mesher of steps 2-3):
 //  1. Anthropometry -> skeleton. Joint heights and segment lengths are
 //     fractions of stature (Drillis & Contini 1966, as tabulated in Winter,
 //     "Biomechanics and Motor Control of Human Movement", 4th ed. 2009,
