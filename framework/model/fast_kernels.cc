@@ -21,6 +21,8 @@ namespace {
 
 constexpr int kRowTile = 8;    // rows per micro-kernel tile
 constexpr int kPanelTile = 3;  // 16-wide panels per micro-kernel tile
+// Rows per cache block of the GEMM (a multiple of both row tiles, 8 and 6).
+constexpr int64_t kRowBlock = 96;
 
 bool CpuHasAvx512() {
   static const bool has =
@@ -229,6 +231,24 @@ void GemmAvx512(const float* x,
                 const GemmEpilogue& ep,
                 int64_t panel_begin,
                 int64_t panel_end) {
+  // Blocks of kRowBlock rows: a block's rows stay in L1/L2 while every panel
+  // group reads them (streaming all rows once per panel group runs at ~65%
+  // of the blocked speed once they exceed the L2).
+  if (rows > kRowBlock) {
+    for (int64_t r0 = 0; r0 < rows; r0 += kRowBlock) {
+      GemmAvx512(x + r0 * ldx,
+                 ldx,
+                 xks,
+                 std::min(kRowBlock, rows - r0),
+                 w,
+                 y + r0 * ldy,
+                 ldy,
+                 TileEpilogue(ep, r0),
+                 panel_begin,
+                 panel_end);
+    }
+    return;
+  }
   for (int64_t p0 = panel_begin; p0 < panel_end;) {
     // Tiles of 8 rows x 3 panels, or 6 rows x 4 panels where that avoids a
     // 1- or 2-panel tile (load-bound): 4, 7 = 4 + 3 and 8 = 4 + 4 panels.
