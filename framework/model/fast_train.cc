@@ -87,26 +87,6 @@ GemmEpilogue OffsetEpilogue(const GemmEpilogue& ep, int64_t r0) {
   return out;
 }
 
-/// `dst[c][r] = src[r][c]` for `rows x cols` (blocked).
-void Transpose(const float* src,
-               int64_t lds,
-               int64_t rows,
-               int64_t cols,
-               float* dst,
-               int64_t ldd) {
-  constexpr int64_t kBlock = 16;
-  for (int64_t r0 = 0; r0 < rows; r0 += kBlock) {
-    const int64_t r1 = std::min(rows, r0 + kBlock);
-    for (int64_t c0 = 0; c0 < cols; c0 += kBlock) {
-      const int64_t c1 = std::min(cols, c0 + kBlock);
-      for (int64_t r = r0; r < r1; ++r) {
-        const float* s = src + r * lds;
-        for (int64_t c = c0; c < c1; ++c) dst[c * ldd + r] = s[c];
-      }
-    }
-  }
-}
-
 float* Grad(at::Tensor& parameter) {
   at::Tensor& grad = parameter.mutable_grad();
   if (!grad.defined() || !grad.sizes().equals(parameter.sizes())) {
@@ -180,6 +160,25 @@ void AddInPlace(const float* x,
       const float* s = x + r * ldx;
       float* d = y + r * ldy;
       for (int64_t c = 0; c < cols; ++c) d[c] += s[c];
+    }
+  });
+}
+
+/// `y = a + b` elementwise over the first `cols` columns.
+void AddColumns(const float* a,
+                int64_t lda,
+                const float* b,
+                int64_t ldb,
+                int64_t rows,
+                int64_t cols,
+                float* y,
+                int64_t ldy) {
+  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t r = begin; r < end; ++r) {
+      const float* s = a + r * lda;
+      const float* t = b + r * ldb;
+      float* d = y + r * ldy;
+      for (int64_t c = 0; c < cols; ++c) d[c] = s[c] + t[c];
     }
   });
 }
@@ -427,17 +426,19 @@ void LinearOp::Pack() {
     const float* w = Data(part.conv->weight);
     const float* b = Data(part.conv->bias);
     const int64_t m = part.conv->weight.size(0);
-    for (int64_t i = 0; i < m; ++i) {
-      const int64_t src = part.out_order[static_cast<size_t>(i)];
-      const float* wr = w + src * in_;
-      float* dst = w_.data() + (row + i) * kp;
-      for (int64_t k = 0; k < in_; ++k) {
-        const float value = wr[in_order_[static_cast<size_t>(k)]];
-        dst[k] = value;
-        wt_.data()[k * mp + row + i] = value;
+    ParallelRows(m, 32, [&](int64_t begin, int64_t end) {
+      for (int64_t i = begin; i < end; ++i) {
+        const int64_t src = part.out_order[static_cast<size_t>(i)];
+        const float* wr = w + src * in_;
+        float* dst = w_.data() + (row + i) * kp;
+        for (int64_t k = 0; k < in_; ++k) {
+          const float value = wr[in_order_[static_cast<size_t>(k)]];
+          dst[k] = value;
+          wt_.data()[k * mp + row + i] = value;
+        }
+        bias_.data()[row + i] = b[src];
       }
-      bias_.data()[row + i] = b[src];
-    }
+    });
     row += m;
   }
 }
@@ -595,15 +596,17 @@ void LinearOp::Backward(const Context& ctx,
     float* gw = Grad(part.conv->weight);
     float* gb = Grad(part.conv->bias);
     const int64_t m = part.conv->weight.size(0);
-    for (int64_t i = 0; i < m; ++i) {
-      const int64_t dst = part.out_order[static_cast<size_t>(i)];
-      const float* src = dw_.data() + (row + i) * kp;
-      float* gr = gw + dst * in_;
-      for (int64_t k = 0; k < in_; ++k) {
-        gr[in_order_[static_cast<size_t>(k)]] = src[k];
+    ParallelRows(m, 32, [&](int64_t begin, int64_t end) {
+      for (int64_t i = begin; i < end; ++i) {
+        const int64_t dst = part.out_order[static_cast<size_t>(i)];
+        const float* src = dw_.data() + (row + i) * kp;
+        float* gr = gw + dst * in_;
+        for (int64_t k = 0; k < in_; ++k) {
+          gr[in_order_[static_cast<size_t>(k)]] = src[k];
+        }
+        gb[dst] = static_cast<float>(db_[static_cast<size_t>(row + i)]);
       }
-      gb[dst] = static_cast<float>(db_[static_cast<size_t>(row + i)]);
-    }
+    });
     row += m;
   }
   if (dx == nullptr) return;
@@ -1078,7 +1081,7 @@ void SelfAttentionOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
               const float* k = q + d;
               const float* v = q + 2 * d;
               float* kt = scratch.t0.data();
-              Transpose(k, L.q.ld, n, dh, kt, np);
+              internal::Transpose(ctx.isa, k, L.q.ld, n, dh, kt, np);
               float* p = L.probs.row((f * h + head) * n);
               GemmPacked(ctx.isa,
                          q,
@@ -1212,7 +1215,7 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
               float* ds = scratch.t0.data();
               float* vt = scratch.t2.data();
               // dP = dO v^T.
-              Transpose(v, ldq, n, dh, vt, np);
+              internal::Transpose(ctx.isa, v, ldq, n, dh, vt, np);
               GemmPacked(ctx.isa,
                          dout,
                          do_.ld,
@@ -1264,6 +1267,15 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
             }
           }
         });
+    // The residual and the [merged | x] concatenation paths, then qkv's.
+    AddColumns(grad_out->data(),
+               grad_out->ld,
+               dxcat_.data() + d,
+               dxcat_.ld,
+               rows,
+               d,
+               grad_in->data(),
+               grad_in->ld);
     L.qkv.Backward(ctx,
                    in,
                    ld_in,
@@ -1272,12 +1284,7 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
                    rows,
                    grad_in->data(),
                    grad_in->ld,
-                   false);
-    // + the residual and the [merged | x] concatenation paths.
-    AddInPlace(
-        grad_out->data(), grad_out->ld, rows, d, grad_in->data(), grad_in->ld);
-    AddInPlace(
-        dxcat_.data() + d, dxcat_.ld, rows, d, grad_in->data(), grad_in->ld);
+                   /*accumulate=*/true);
     if (idx > 0) {
       // The next (lower) layer's output gradient is this layer's input one.
       if (grad_out == &dy) {
