@@ -32,9 +32,14 @@ inline void CpuRelax() {
 thread_local int tls_thread_index = 0;
 thread_local bool tls_in_job = false;
 
-/// The job word: epoch (32 bits) | number of chunks (16) | next chunk (16).
-/// Claiming a chunk is one compare-and-swap on it, so a worker that wakes up
-/// late can never claim a chunk of a newer job than the one it read.
+/// The job word: epoch (32 bits) | front (16) | back (16): the chunks not yet
+/// claimed are [front, back). The calling thread claims from the front and
+/// the workers from the back, so when no thread is held up each runs the
+/// same contiguous part of every loop (its rows stay in its own caches from
+/// one loop to the next) and the parts meet wherever the threads' speeds put
+/// them. Claiming a chunk is one compare-and-swap on the word, so a worker
+/// that wakes up late can never claim a chunk of a newer job than the one it
+/// read.
 class Pool {
  public:
   static Pool& Get() {
@@ -69,7 +74,7 @@ class Pool {
     active_workers_.store(threads - 1, std::memory_order_relaxed);
     done_.store(0, std::memory_order_relaxed);
     const uint64_t epoch = (job_.load(std::memory_order_relaxed) >> 32) + 1;
-    job_.store((epoch << 32) | (static_cast<uint64_t>(chunks) << 16),
+    job_.store((epoch << 32) | static_cast<uint64_t>(chunks),
                std::memory_order_seq_cst);
     if (sleepers_.load(std::memory_order_seq_cst) > 0) {
       std::lock_guard<std::mutex> lock(mutex_);
@@ -77,7 +82,7 @@ class Pool {
     }
     tls_in_job = true;
     tls_thread_index = 0;
-    const int64_t mine = Work(epoch);
+    const int64_t mine = Work(epoch, /*from_front=*/true);
     tls_in_job = false;
     // Wait for the chunks other threads hold.
     int spins = 0;
@@ -100,20 +105,24 @@ class Pool {
  private:
   Pool() = default;
 
-  /// Claims and runs chunks of job `epoch` until none is left; returns how
-  /// many this thread ran (the caller's are not added to done_).
-  int64_t Work(uint64_t epoch) {
+  /// Claims and runs chunks of job `epoch` (from the front or the back)
+  /// until none is left; returns how many this thread ran (the caller's are
+  /// not added to done_).
+  int64_t Work(uint64_t epoch, bool from_front) {
     int64_t ran = 0;
     uint64_t word = job_.load(std::memory_order_acquire);
     for (;;) {
       if ((word >> 32) != epoch) break;
-      const uint64_t chunks = (word >> 16) & 0xFFFF;
-      const uint64_t next = word & 0xFFFF;
-      if (next >= chunks) break;
+      const uint64_t front = (word >> 16) & 0xFFFF;
+      const uint64_t back = word & 0xFFFF;
+      if (front >= back) break;
+      const uint64_t claimed =
+          from_front ? word + (uint64_t{1} << 16) : word - 1;
       if (!job_.compare_exchange_weak(
-              word, word + 1, std::memory_order_acq_rel)) {
+              word, claimed, std::memory_order_acq_rel)) {
         continue;  // `word` reloaded
       }
+      const uint64_t next = from_front ? front : back - 1;
       // The job cannot end (nor its fields change) before this chunk is done.
       const int64_t b = begin_ + static_cast<int64_t>(next) * grain_;
       const int64_t e = std::min(end_, b + grain_);
@@ -160,7 +169,7 @@ class Pool {
       // Workers beyond the job's thread count sit it out.
       if (index > active_workers_.load(std::memory_order_relaxed)) continue;
       tls_in_job = true;
-      const int64_t ran = Work(seen);
+      const int64_t ran = Work(seen, /*from_front=*/false);
       tls_in_job = false;
       if (ran > 0) done_.fetch_add(ran, std::memory_order_acq_rel);
     }
