@@ -128,6 +128,16 @@ void GemmPackedStrided(KernelIsa isa,
                        int64_t panel_begin,
                        int64_t panel_end);
 
+/// `dst[c * ldd + r] = src[r * lds + c]` for `rows x cols` (AVX-512: 16 x 16
+/// tiles transposed in registers, with masked loads and stores at the edges).
+void Transpose(KernelIsa isa,
+               const float* src,
+               int64_t lds,
+               int64_t rows,
+               int64_t cols,
+               float* dst,
+               int64_t ldd);
+
 /// GemmPacked over all panels of `w`.
 void Gemm(KernelIsa isa,
           const float* x,

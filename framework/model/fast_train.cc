@@ -2,6 +2,7 @@
 
 #include "framework/core/error.h"
 #include "framework/model/fast_loss.h"
+#include "framework/model/fast_parallel.h"
 #include "framework/model/labeler.h"
 #include "framework/model/layers.h"
 #include "framework/model/normalization.h"
@@ -30,35 +31,50 @@ using internal::WeightView;
 /// Rows per dW accumulation chunk: the chunk of the input (the GEMM's
 /// "weights") stays in L2 while every output row tile reads it.
 constexpr int64_t kReductionChunk = 256;
-/// Minimum rows per thread in row-parallel GEMMs and elementwise passes.
+/// Rows per chunk of the elementwise passes.
 constexpr int64_t kRowGrain = 64;
+/// Rows per chunk of the row-parallel GEMMs (a multiple of the micro-kernel's
+/// row tiles, 8 and 6).
+constexpr int64_t kGemmRowGrain = 96;
+/// Row ranges of the column reductions (BatchNorm statistics, bias and
+/// weight gradients): at most this many, of at least kReduceRows rows each.
+/// The ranges depend on the row count only, so the sums do not depend on
+/// the thread count or on which thread ran a range.
+constexpr int64_t kMaxReduceChunks = 8;
+constexpr int64_t kReduceRows = 512;
 
-/// `f(begin, end)` over [0, n) split across torch's intra-op threads.
+/// `f(begin, end)` over [0, n) in chunks of `grain`, on the engine's threads
+/// (fast_parallel.h: chunks are claimed dynamically).
 template <typename F>
 void ParallelRows(int64_t n, int64_t grain, const F& f) {
   if (n <= 0) return;
-  at::parallel_for(0, n, grain, f);
+  internal::FastParallelFor(0, n, grain, f);
 }
 
-/// Per-column sums over the rows [0, n), split into one row range per
-/// thread: `f(begin, end, sums, tmp)` adds its range's sums into `sums`
-/// (`width` doubles, zeroed) with `tmp` (`width` floats) as scratch. Returns
-/// the totals, the ranges' sums added in range order.
+int64_t ReduceChunks(int64_t n) {
+  return std::max<int64_t>(1, std::min(kMaxReduceChunks, n / kReduceRows));
+}
+
+/// Per-column sums over the rows [0, n), in ReduceChunks(n) row ranges:
+/// `f(begin, end, sums, tmp)` adds its range's sums into `sums` (`width`
+/// doubles, zeroed) with `tmp` (`width` floats) as scratch. Returns the
+/// totals, the ranges' sums added in range order.
 template <typename F>
 std::vector<double> ParallelColumnReduce(int64_t n, int64_t width, const F& f) {
-  const int64_t chunks = std::max<int64_t>(
-      1, std::min<int64_t>(at::get_num_threads(), n / kRowGrain));
-  std::vector<std::vector<double>> partial(static_cast<size_t>(chunks));
-  at::parallel_for(0, chunks, 1, [&](int64_t begin, int64_t end) {
+  const int64_t chunks = ReduceChunks(n);
+  std::vector<double> partial(static_cast<size_t>(chunks * width), 0.0);
+  internal::FastParallelFor(0, chunks, 1, [&](int64_t begin, int64_t end) {
     std::vector<float> tmp(static_cast<size_t>(width));
     for (int64_t c = begin; c < end; ++c) {
-      std::vector<double>& sums = partial[static_cast<size_t>(c)];
-      sums.assign(static_cast<size_t>(width), 0.0);
-      f(n * c / chunks, n * (c + 1) / chunks, sums.data(), tmp.data());
+      f(n * c / chunks,
+        n * (c + 1) / chunks,
+        partial.data() + c * width,
+        tmp.data());
     }
   });
   std::vector<double> total(static_cast<size_t>(width), 0.0);
-  for (const std::vector<double>& sums : partial) {
+  for (int64_t c = 0; c < chunks; ++c) {
+    const double* sums = partial.data() + c * width;
     for (size_t i = 0; i < total.size(); ++i) total[i] += sums[i];
   }
   return total;
@@ -69,26 +85,6 @@ GemmEpilogue OffsetEpilogue(const GemmEpilogue& ep, int64_t r0) {
   if (ep.residual != nullptr) out.residual = ep.residual + r0 * ep.ld_residual;
   if (ep.row_scale != nullptr) out.row_scale = ep.row_scale + r0;
   return out;
-}
-
-/// `dst[c][r] = src[r][c]` for `rows x cols` (blocked).
-void Transpose(const float* src,
-               int64_t lds,
-               int64_t rows,
-               int64_t cols,
-               float* dst,
-               int64_t ldd) {
-  constexpr int64_t kBlock = 16;
-  for (int64_t r0 = 0; r0 < rows; r0 += kBlock) {
-    const int64_t r1 = std::min(rows, r0 + kBlock);
-    for (int64_t c0 = 0; c0 < cols; c0 += kBlock) {
-      const int64_t c1 = std::min(cols, c0 + kBlock);
-      for (int64_t r = r0; r < r1; ++r) {
-        const float* s = src + r * lds;
-        for (int64_t c = c0; c < c1; ++c) dst[c * ldd + r] = s[c];
-      }
-    }
-  }
 }
 
 float* Grad(at::Tensor& parameter) {
@@ -164,6 +160,25 @@ void AddInPlace(const float* x,
       const float* s = x + r * ldx;
       float* d = y + r * ldy;
       for (int64_t c = 0; c < cols; ++c) d[c] += s[c];
+    }
+  });
+}
+
+/// `y = a + b` elementwise over the first `cols` columns.
+void AddColumns(const float* a,
+                int64_t lda,
+                const float* b,
+                int64_t ldb,
+                int64_t rows,
+                int64_t cols,
+                float* y,
+                int64_t ldy) {
+  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+    for (int64_t r = begin; r < end; ++r) {
+      const float* s = a + r * lda;
+      const float* t = b + r * ldb;
+      float* d = y + r * ldy;
+      for (int64_t c = 0; c < cols; ++c) d[c] = s[c] + t[c];
     }
   });
 }
@@ -411,17 +426,19 @@ void LinearOp::Pack() {
     const float* w = Data(part.conv->weight);
     const float* b = Data(part.conv->bias);
     const int64_t m = part.conv->weight.size(0);
-    for (int64_t i = 0; i < m; ++i) {
-      const int64_t src = part.out_order[static_cast<size_t>(i)];
-      const float* wr = w + src * in_;
-      float* dst = w_.data() + (row + i) * kp;
-      for (int64_t k = 0; k < in_; ++k) {
-        const float value = wr[in_order_[static_cast<size_t>(k)]];
-        dst[k] = value;
-        wt_.data()[k * mp + row + i] = value;
+    ParallelRows(m, 32, [&](int64_t begin, int64_t end) {
+      for (int64_t i = begin; i < end; ++i) {
+        const int64_t src = part.out_order[static_cast<size_t>(i)];
+        const float* wr = w + src * in_;
+        float* dst = w_.data() + (row + i) * kp;
+        for (int64_t k = 0; k < in_; ++k) {
+          const float value = wr[in_order_[static_cast<size_t>(k)]];
+          dst[k] = value;
+          wt_.data()[k * mp + row + i] = value;
+        }
+        bias_.data()[row + i] = b[src];
       }
-      bias_.data()[row + i] = b[src];
-    }
+    });
     row += m;
   }
 }
@@ -442,7 +459,7 @@ void LinearOp::Forward(const Context& ctx,
       internal::PackBf16B(w_.data(), 1, RoundUp16(in_), 0, in_, &fwd_b_);
       fwd_packed_ = true;
     }
-    scratch_.resize(static_cast<size_t>(at::get_num_threads()));
+    scratch_.resize(static_cast<size_t>(internal::FastParallelThreads()));
     ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
       const bool residual = epilogue.residual != nullptr;
       if (residual && epilogue.residual != y) {
@@ -453,21 +470,22 @@ void LinearOp::Forward(const Context& ctx,
                     y + begin * ldy,
                     ldy);
       }
-      internal::MatMulBf16(x + begin * ldx,
-                           ldx,
-                           1,
-                           end - begin,
-                           fwd_b_,
-                           bias_.data(),
-                           residual,
-                           y + begin * ldy,
-                           ldy,
-                           scratch_[static_cast<size_t>(at::get_thread_num())]);
+      internal::MatMulBf16(
+          x + begin * ldx,
+          ldx,
+          1,
+          end - begin,
+          fwd_b_,
+          bias_.data(),
+          residual,
+          y + begin * ldy,
+          ldy,
+          scratch_[static_cast<size_t>(internal::FastParallelThreadIndex())]);
     });
     return;
   }
   const WeightView w{wt_.data(), 16, RoundUp16(out_), bias_.data(), out_, in_};
-  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+  ParallelRows(rows, kGemmRowGrain, [&](int64_t begin, int64_t end) {
     GemmPacked(ctx.isa,
                x + begin * ldx,
                ldx,
@@ -502,60 +520,75 @@ void LinearOp::Backward(const Context& ctx,
     // output rows of dW in blocks of 32.
     internal::PrepareBf16B(rows, in_, &x_b_);
     const int64_t pairs = (x_b_.k_pad + 1) / 2;
-    at::parallel_for(0, pairs, 64, [&](int64_t begin, int64_t end) {
+    internal::FastParallelFor(0, pairs, 64, [&](int64_t begin, int64_t end) {
       internal::PackBf16B(x, ldx, 1, 2 * begin, std::min(rows, 2 * end), &x_b_);
     });
-    scratch_.resize(static_cast<size_t>(at::get_num_threads()));
+    scratch_.resize(static_cast<size_t>(internal::FastParallelThreads()));
     const int64_t blocks = (out_ + 31) / 32;
-    at::parallel_for(0, blocks, 1, [&](int64_t begin, int64_t end) {
+    internal::FastParallelFor(0, blocks, 1, [&](int64_t begin, int64_t end) {
       const int64_t m0 = begin * 32;
       const int64_t m1 = std::min(out_, end * 32);
-      internal::MatMulBf16(dy + m0,
-                           1,
-                           ldy,
-                           m1 - m0,
-                           x_b_,
-                           nullptr,
-                           false,
-                           dw_.data() + m0 * kp,
-                           kp,
-                           scratch_[static_cast<size_t>(at::get_thread_num())]);
+      internal::MatMulBf16(
+          dy + m0,
+          1,
+          ldy,
+          m1 - m0,
+          x_b_,
+          nullptr,
+          false,
+          dw_.data() + m0 * kp,
+          kp,
+          scratch_[static_cast<size_t>(internal::FastParallelThreadIndex())]);
     });
   } else {
-    // dW = dy^T x (dy read transposed in place), accumulated over chunks of
-    // rows; threads split the output rows (multiples of 8, the micro-kernel's
-    // row tile).
-    const int64_t row_tiles = (out_ + 7) / 8;
-    at::parallel_for(0, row_tiles, 1, [&](int64_t begin, int64_t end) {
-      const int64_t m0 = begin * 8;
-      const int64_t m1 = std::min(out_, end * 8);
-      float* dw = dw_.data() + m0 * kp;
-      for (int64_t c0 = 0; c0 < rows; c0 += kReductionChunk) {
-        const int64_t cn = std::min(kReductionChunk, rows - c0);
-        GemmEpilogue ep;
-        if (c0 > 0) {
-          ep.residual = dw;
-          ep.ld_residual = kp;
-        }
-        internal::GemmPackedStrided(
-            ctx.isa,
-            dy + c0 * ldy + m0,
-            1,
-            ldy,
-            m1 - m0,
-            WeightView{x + c0 * ldx, 16, ldx, nullptr, in_, cn},
-            dw,
-            kp,
-            ep,
-            0,
-            NumPanels(in_));
-      }
-      if (rows == 0) {
-        for (int64_t m = m0; m < m1; ++m) {
-          std::fill(dw_.data() + m * kp, dw_.data() + m * kp + in_, 0.0f);
+    // dW = dy^T x (dy read transposed in place): each of ReduceChunks(rows)
+    // row ranges accumulates its partial dW over blocks of kReductionChunk
+    // rows (the block of x stays in L2 while every output tile reads it);
+    // the partials are then added in range order.
+    const int64_t ranges = ReduceChunks(rows);
+    const int64_t size = out_ * kp;
+    dw_partial_.Resize(static_cast<size_t>(ranges * size + 16));
+    internal::FastParallelFor(0, ranges, 1, [&](int64_t begin, int64_t end) {
+      for (int64_t c = begin; c < end; ++c) {
+        const int64_t r0 = rows * c / ranges;
+        const int64_t r1 = rows * (c + 1) / ranges;
+        float* dw = ranges == 1 ? dw_.data() : dw_partial_.data() + c * size;
+        for (int64_t b0 = r0; b0 < r1; b0 += kReductionChunk) {
+          const int64_t bn = std::min(kReductionChunk, r1 - b0);
+          GemmEpilogue ep;
+          if (b0 > r0) {
+            ep.residual = dw;
+            ep.ld_residual = kp;
+          }
+          internal::GemmPackedStrided(
+              ctx.isa,
+              dy + b0 * ldy,
+              1,
+              ldy,
+              out_,
+              WeightView{x + b0 * ldx, 16, ldx, nullptr, in_, bn},
+              dw,
+              kp,
+              ep,
+              0,
+              NumPanels(in_));
         }
       }
     });
+    if (rows == 0) {
+      std::fill(dw_.data(), dw_.data() + size, 0.0f);
+    } else if (ranges > 1) {
+      ParallelRows(out_, 8, [&](int64_t begin, int64_t end) {
+        for (int64_t m = begin; m < end; ++m) {
+          float* dst = dw_.data() + m * kp;
+          for (int64_t k = 0; k < in_; ++k) dst[k] = 0.0f;
+          for (int64_t c = 0; c < ranges; ++c) {
+            const float* src = dw_partial_.data() + c * size + m * kp;
+            for (int64_t k = 0; k < in_; ++k) dst[k] += src[k];
+          }
+        }
+      });
+    }
   }
   // Scatter into torch's layout.
   int64_t row = 0;
@@ -563,15 +596,17 @@ void LinearOp::Backward(const Context& ctx,
     float* gw = Grad(part.conv->weight);
     float* gb = Grad(part.conv->bias);
     const int64_t m = part.conv->weight.size(0);
-    for (int64_t i = 0; i < m; ++i) {
-      const int64_t dst = part.out_order[static_cast<size_t>(i)];
-      const float* src = dw_.data() + (row + i) * kp;
-      float* gr = gw + dst * in_;
-      for (int64_t k = 0; k < in_; ++k) {
-        gr[in_order_[static_cast<size_t>(k)]] = src[k];
+    ParallelRows(m, 32, [&](int64_t begin, int64_t end) {
+      for (int64_t i = begin; i < end; ++i) {
+        const int64_t dst = part.out_order[static_cast<size_t>(i)];
+        const float* src = dw_.data() + (row + i) * kp;
+        float* gr = gw + dst * in_;
+        for (int64_t k = 0; k < in_; ++k) {
+          gr[in_order_[static_cast<size_t>(k)]] = src[k];
+        }
+        gb[dst] = static_cast<float>(db_[static_cast<size_t>(row + i)]);
       }
-      gb[dst] = static_cast<float>(db_[static_cast<size_t>(row + i)]);
-    }
+    });
     row += m;
   }
   if (dx == nullptr) return;
@@ -583,22 +618,23 @@ void LinearOp::Backward(const Context& ctx,
       bwd_packed_ = true;
     }
     ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
-      internal::MatMulBf16(dy + begin * ldy,
-                           ldy,
-                           1,
-                           end - begin,
-                           bwd_b_,
-                           nullptr,
-                           accumulate,
-                           dx + begin * lddx,
-                           lddx,
-                           scratch_[static_cast<size_t>(at::get_thread_num())]);
+      internal::MatMulBf16(
+          dy + begin * ldy,
+          ldy,
+          1,
+          end - begin,
+          bwd_b_,
+          nullptr,
+          accumulate,
+          dx + begin * lddx,
+          lddx,
+          scratch_[static_cast<size_t>(internal::FastParallelThreadIndex())]);
     });
     return;
   }
   // dx = dy W.
   const WeightView w{w_.data(), 16, kp, nullptr, in_, out_};
-  ParallelRows(rows, kRowGrain, [&](int64_t begin, int64_t end) {
+  ParallelRows(rows, kGemmRowGrain, [&](int64_t begin, int64_t end) {
     GemmEpilogue ep;
     if (accumulate) {
       ep.residual = dx + begin * lddx;
@@ -975,6 +1011,9 @@ struct SelfAttentionOp::Layer {
 
 namespace {
 
+/// Frames per chunk of the per-frame loops (attention, loss).
+constexpr int64_t kFrameGrain = 4;
+
 /// Per-thread scratch of the attention kernels.
 struct HeadScratch {
   internal::AlignedFloats t0;
@@ -1028,45 +1067,46 @@ void SelfAttentionOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
     L.z1.Resize(rows, 2 * d);
     L.a1.Resize(rows, 2 * d);
     L.qkv.Forward(ctx, in, ld_in, rows, L.q.data(), L.q.ld);
-    at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
-      HeadScratch scratch;
-      scratch.t0.Resize(static_cast<size_t>(dh * np + 16));
-      // The 1/sqrt(dh) score scale as the GEMM's per-row epilogue scale.
-      const std::vector<float> scales(static_cast<size_t>(n), scale);
-      GemmEpilogue scaled;
-      scaled.row_scale = scales.data();
-      for (int64_t f = begin; f < end; ++f) {
-        for (int64_t head = 0; head < h; ++head) {
-          const float* q = L.q.row(f * n) + head * dh;
-          const float* k = q + d;
-          const float* v = q + 2 * d;
-          float* kt = scratch.t0.data();
-          Transpose(k, L.q.ld, n, dh, kt, np);
-          float* p = L.probs.row((f * h + head) * n);
-          GemmPacked(ctx.isa,
-                     q,
-                     L.q.ld,
-                     n,
-                     WeightView{kt, 16, np, nullptr, n, dh},
-                     p,
-                     L.probs.ld,
-                     scaled,
-                     0,
-                     NumPanels(n));
-          internal::SoftmaxRows(ctx.isa, p, L.probs.ld, n, n);
-          GemmPacked(ctx.isa,
-                     p,
-                     L.probs.ld,
-                     n,
-                     WeightView{v, 16, L.q.ld, nullptr, dh, n},
-                     L.o.row(f * n) + head * dh,
-                     L.o.ld,
-                     {},
-                     0,
-                     NumPanels(dh));
-        }
-      }
-    });
+    internal::FastParallelFor(
+        0, ctx.batch, kFrameGrain, [&](int64_t begin, int64_t end) {
+          HeadScratch scratch;
+          scratch.t0.Resize(static_cast<size_t>(dh * np + 16));
+          // The 1/sqrt(dh) score scale as the GEMM's per-row epilogue scale.
+          const std::vector<float> scales(static_cast<size_t>(n), scale);
+          GemmEpilogue scaled;
+          scaled.row_scale = scales.data();
+          for (int64_t f = begin; f < end; ++f) {
+            for (int64_t head = 0; head < h; ++head) {
+              const float* q = L.q.row(f * n) + head * dh;
+              const float* k = q + d;
+              const float* v = q + 2 * d;
+              float* kt = scratch.t0.data();
+              internal::Transpose(ctx.isa, k, L.q.ld, n, dh, kt, np);
+              float* p = L.probs.row((f * h + head) * n);
+              GemmPacked(ctx.isa,
+                         q,
+                         L.q.ld,
+                         n,
+                         WeightView{kt, 16, np, nullptr, n, dh},
+                         p,
+                         L.probs.ld,
+                         scaled,
+                         0,
+                         NumPanels(n));
+              internal::SoftmaxRows(ctx.isa, p, L.probs.ld, n, n);
+              GemmPacked(ctx.isa,
+                         p,
+                         L.probs.ld,
+                         n,
+                         WeightView{v, 16, L.q.ld, nullptr, dh, n},
+                         L.o.row(f * n) + head * dh,
+                         L.o.ld,
+                         {},
+                         0,
+                         NumPanels(dh));
+            }
+          }
+        });
     L.merge.Forward(ctx, L.o.data(), L.o.ld, rows, L.xcat.data(), L.xcat.ld);
     L.post1.Forward(ctx, L.xcat.data(), L.xcat.ld, rows, L.z1.data(), L.z1.ld);
     L.bn.Forward(ctx,
@@ -1155,76 +1195,87 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
                      do_.ld,
                      false);
     // Attention heads, per frame.
-    at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
-      HeadScratch scratch;
-      scratch.t0.Resize(static_cast<size_t>(np * np + 16));  // dP / dS
-      scratch.t2.Resize(static_cast<size_t>(dh * np + 16));  // v^T
-      for (int64_t f = begin; f < end; ++f) {
-        for (int64_t head = 0; head < h; ++head) {
-          const float* q = L.q.row(f * n) + head * dh;
-          const float* k = q + d;
-          const float* v = q + 2 * d;
-          const int64_t ldq = L.q.ld;
-          const float* p = L.probs.row((f * h + head) * n);
-          const int64_t ldp = L.probs.ld;
-          const float* dout = do_.row(f * n) + head * dh;
-          float* dq = dqkv_.row(f * n) + head * dh;
-          float* dk = dq + d;
-          float* dv = dq + 2 * d;
-          float* ds = scratch.t0.data();
-          float* vt = scratch.t2.data();
-          // dP = dO v^T.
-          Transpose(v, ldq, n, dh, vt, np);
-          GemmPacked(ctx.isa,
-                     dout,
-                     do_.ld,
-                     n,
-                     WeightView{vt, 16, np, nullptr, n, dh},
-                     ds,
-                     np,
-                     {},
-                     0,
-                     NumPanels(n));
-          // dS = P * (dP - rowsum(dP * P)) / sqrt(dh).
-          SoftmaxBackwardRows(p, ldp, n, scale, ds, np);
-          // dV = P^T dO (P read transposed in place).
-          internal::GemmPackedStrided(
-              ctx.isa,
-              p,
-              1,
-              ldp,
-              n,
-              WeightView{dout, 16, do_.ld, nullptr, dh, n},
-              dv,
-              dqkv_.ld,
-              {},
-              0,
-              NumPanels(dh));
-          // dQ = dS k; dK = dS^T q.
-          GemmPacked(ctx.isa,
-                     ds,
-                     np,
-                     n,
-                     WeightView{k, 16, ldq, nullptr, dh, n},
-                     dq,
-                     dqkv_.ld,
-                     {},
-                     0,
-                     NumPanels(dh));
-          internal::GemmPackedStrided(ctx.isa,
-                                      ds,
-                                      1,
-                                      np,
-                                      n,
-                                      WeightView{q, 16, ldq, nullptr, dh, n},
-                                      dk,
-                                      dqkv_.ld,
-                                      {},
-                                      0,
-                                      NumPanels(dh));
-        }
-      }
-    });
+    internal::FastParallelFor(
+        0, ctx.batch, kFrameGrain, [&](int64_t begin, int64_t end) {
+          HeadScratch scratch;
+          scratch.t0.Resize(static_cast<size_t>(np * np + 16));  // dP / dS
+          scratch.t2.Resize(static_cast<size_t>(dh * np + 16));  // v^T
+          for (int64_t f = begin; f < end; ++f) {
+            for (int64_t head = 0; head < h; ++head) {
+              const float* q = L.q.row(f * n) + head * dh;
+              const float* k = q + d;
+              const float* v = q + 2 * d;
+              const int64_t ldq = L.q.ld;
+              const float* p = L.probs.row((f * h + head) * n);
+              const int64_t ldp = L.probs.ld;
+              const float* dout = do_.row(f * n) + head * dh;
+              float* dq = dqkv_.row(f * n) + head * dh;
+              float* dk = dq + d;
+              float* dv = dq + 2 * d;
+              float* ds = scratch.t0.data();
+              float* vt = scratch.t2.data();
+              // dP = dO v^T.
+              internal::Transpose(ctx.isa, v, ldq, n, dh, vt, np);
+              GemmPacked(ctx.isa,
+                         dout,
+                         do_.ld,
+                         n,
+                         WeightView{vt, 16, np, nullptr, n, dh},
+                         ds,
+                         np,
+                         {},
+                         0,
+                         NumPanels(n));
+              // dS = P * (dP - rowsum(dP * P)) / sqrt(dh).
+              SoftmaxBackwardRows(p, ldp, n, scale, ds, np);
+              // dV = P^T dO (P read transposed in place).
+              internal::GemmPackedStrided(
+                  ctx.isa,
+                  p,
+                  1,
+                  ldp,
+                  n,
+                  WeightView{dout, 16, do_.ld, nullptr, dh, n},
+                  dv,
+                  dqkv_.ld,
+                  {},
+                  0,
+                  NumPanels(dh));
+              // dQ = dS k; dK = dS^T q.
+              GemmPacked(ctx.isa,
+                         ds,
+                         np,
+                         n,
+                         WeightView{k, 16, ldq, nullptr, dh, n},
+                         dq,
+                         dqkv_.ld,
+                         {},
+                         0,
+                         NumPanels(dh));
+              internal::GemmPackedStrided(
+                  ctx.isa,
+                  ds,
+                  1,
+                  np,
+                  n,
+                  WeightView{q, 16, ldq, nullptr, dh, n},
+                  dk,
+                  dqkv_.ld,
+                  {},
+                  0,
+                  NumPanels(dh));
+            }
+          }
+        });
+    // The residual and the [merged | x] concatenation paths, then qkv's.
+    AddColumns(grad_out->data(),
+               grad_out->ld,
+               dxcat_.data() + d,
+               dxcat_.ld,
+               rows,
+               d,
+               grad_in->data(),
+               grad_in->ld);
     L.qkv.Backward(ctx,
                    in,
                    ld_in,
@@ -1233,12 +1284,7 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
                    rows,
                    grad_in->data(),
                    grad_in->ld,
-                   false);
-    // + the residual and the [merged | x] concatenation paths.
-    AddInPlace(
-        grad_out->data(), grad_out->ld, rows, d, grad_in->data(), grad_in->ld);
-    AddInPlace(
-        dxcat_.data() + d, dxcat_.ld, rows, d, grad_in->data(), grad_in->ld);
+                   /*accumulate=*/true);
     if (idx > 0) {
       // The next (lower) layer's output gradient is this layer's input one.
       if (grad_out == &dy) {
@@ -1390,6 +1436,13 @@ void Conv1dBackboneOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
 
 namespace {
 
+/// Per-thread scratch of the per-frame loss loops (grow-only).
+struct ThreadScratch {
+  internal::FrameLossScratch frame;
+  std::vector<float> g;
+  std::vector<float> w;
+};
+
 class SinkhornLossOp : public NormalizationLossOp {
  public:
   SinkhornLossOp(at::Tensor bin_score, int num_iters)
@@ -1406,32 +1459,38 @@ class SinkhornLossOp : public NormalizationLossOp {
     d_scores.Resize(scores.rows, l);
     std::vector<double> loss(static_cast<size_t>(ctx.batch), 0.0);
     std::vector<double> dalpha(static_cast<size_t>(ctx.batch), 0.0);
-    at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
-      internal::FrameLossScratch scratch;
-      std::vector<float> g(static_cast<size_t>((n + 1) * (l + 1)));
-      std::vector<float> w(g.size());
-      for (int64_t f = begin; f < end; ++f) {
-        internal::BuildFrameTargets(
-            label_ids + f * n, n, l, true, g.data(), w.data());
-        double da = 0.0;
-        loss[static_cast<size_t>(f)] =
-            internal::SinkhornLossFrame(scores.row(f * n),
-                                        scores.ld,
-                                        n,
-                                        l,
-                                        alpha,
-                                        num_iters_,
-                                        g.data(),
-                                        w.data(),
-                                        nullptr,
-                                        d_scores.row(f * n),
-                                        d_scores.ld,
-                                        1.0,
-                                        &da,
-                                        scratch);
-        dalpha[static_cast<size_t>(f)] = da;
-      }
-    });
+    scratch_.resize(static_cast<size_t>(internal::FastParallelThreads()));
+    internal::FastParallelFor(
+        0, ctx.batch, kFrameGrain, [&](int64_t begin, int64_t end) {
+          ThreadScratch& own = scratch_[static_cast<size_t>(
+              internal::FastParallelThreadIndex())];
+          internal::FrameLossScratch& scratch = own.frame;
+          std::vector<float>& g = own.g;
+          std::vector<float>& w = own.w;
+          g.resize(static_cast<size_t>((n + 1) * (l + 1)));
+          w.resize(g.size());
+          for (int64_t f = begin; f < end; ++f) {
+            internal::BuildFrameTargets(
+                label_ids + f * n, n, l, true, g.data(), w.data());
+            double da = 0.0;
+            loss[static_cast<size_t>(f)] =
+                internal::SinkhornLossFrame(scores.row(f * n),
+                                            scores.ld,
+                                            n,
+                                            l,
+                                            alpha,
+                                            num_iters_,
+                                            g.data(),
+                                            w.data(),
+                                            nullptr,
+                                            d_scores.row(f * n),
+                                            d_scores.ld,
+                                            1.0,
+                                            &da,
+                                            scratch);
+            dalpha[static_cast<size_t>(f)] = da;
+          }
+        });
     double total = 0.0, total_dalpha = 0.0;
     for (size_t f = 0; f < loss.size(); ++f) {
       total += loss[f];
@@ -1444,6 +1503,7 @@ class SinkhornLossOp : public NormalizationLossOp {
  private:
   at::Tensor bin_score_;
   int num_iters_;
+  std::vector<ThreadScratch> scratch_;
 };
 
 class LogSoftmaxLossOp : public NormalizationLossOp {
@@ -1460,28 +1520,34 @@ class LogSoftmaxLossOp : public NormalizationLossOp {
     const int64_t l = num_labels;
     d_scores.Resize(scores.rows, l + 1);
     std::vector<double> loss(static_cast<size_t>(ctx.batch), 0.0);
-    at::parallel_for(0, ctx.batch, 1, [&](int64_t begin, int64_t end) {
-      internal::FrameLossScratch scratch;
-      std::vector<float> g(static_cast<size_t>((n + 1) * (l + 1)));
-      std::vector<float> w(g.size());
-      for (int64_t f = begin; f < end; ++f) {
-        internal::BuildFrameTargets(
-            label_ids + f * n, n, l, false, g.data(), w.data());
-        loss[static_cast<size_t>(f)] =
-            internal::LogSoftmaxLossFrame(scores.row(f * n),
-                                          scores.ld,
-                                          n,
-                                          l,
-                                          options_.quirk_probability_loss,
-                                          g.data(),
-                                          w.data(),
-                                          nullptr,
-                                          d_scores.row(f * n),
-                                          d_scores.ld,
-                                          1.0,
-                                          scratch);
-      }
-    });
+    scratch_.resize(static_cast<size_t>(internal::FastParallelThreads()));
+    internal::FastParallelFor(
+        0, ctx.batch, kFrameGrain, [&](int64_t begin, int64_t end) {
+          ThreadScratch& own = scratch_[static_cast<size_t>(
+              internal::FastParallelThreadIndex())];
+          internal::FrameLossScratch& scratch = own.frame;
+          std::vector<float>& g = own.g;
+          std::vector<float>& w = own.w;
+          g.resize(static_cast<size_t>((n + 1) * (l + 1)));
+          w.resize(g.size());
+          for (int64_t f = begin; f < end; ++f) {
+            internal::BuildFrameTargets(
+                label_ids + f * n, n, l, false, g.data(), w.data());
+            loss[static_cast<size_t>(f)] =
+                internal::LogSoftmaxLossFrame(scores.row(f * n),
+                                              scores.ld,
+                                              n,
+                                              l,
+                                              options_.quirk_probability_loss,
+                                              g.data(),
+                                              w.data(),
+                                              nullptr,
+                                              d_scores.row(f * n),
+                                              d_scores.ld,
+                                              1.0,
+                                              scratch);
+          }
+        });
     double total = 0.0;
     for (double value : loss) total += value;
     return total;
@@ -1489,6 +1555,7 @@ class LogSoftmaxLossOp : public NormalizationLossOp {
 
  private:
   LabelingLossOptions options_;
+  std::vector<ThreadScratch> scratch_;
 };
 
 }  // namespace
@@ -1580,7 +1647,7 @@ double FastTrainer::Step(const at::Tensor& points,
   // Median centring (no gradient: the points are data).
   points_.Resize(rows, 3);
   const float* src = p.data_ptr<float>();
-  at::parallel_for(0, ctx_.batch, 16, [&](int64_t begin, int64_t end) {
+  internal::FastParallelFor(0, ctx_.batch, 16, [&](int64_t begin, int64_t end) {
     for (int64_t f = begin; f < end; ++f) {
       float offset[3];
       internal::MedianOffset(src + f * n * 3, n, offset);
@@ -1629,6 +1696,27 @@ double FastTrainer::Step(const at::Tensor& points,
 // ---------------------------------------------------------------------------
 // Fused Adam
 
+namespace {
+
+/// One parameter's update: its tensors and step constants, at `offset` in
+/// the concatenation of all parameters.
+struct AdamSegment {
+  float* w = nullptr;
+  const float* g = nullptr;
+  float* m = nullptr;
+  float* v = nullptr;
+  int64_t count = 0;
+  int64_t offset = 0;
+  float step_size = 0.0f;
+  float inv_bc2_sqrt = 0.0f;
+  float b1 = 0.0f;
+  float b2 = 0.0f;
+  float eps = 0.0f;
+  float wd = 0.0f;
+};
+
+}  // namespace
+
 bool FusedAdamStep(torch::optim::Optimizer& optimizer) {
   auto* adam = dynamic_cast<torch::optim::Adam*>(&optimizer);
   if (adam == nullptr) return false;
@@ -1638,6 +1726,8 @@ bool FusedAdamStep(torch::optim::Optimizer& optimizer) {
     if (options.amsgrad()) return false;
   }
   torch::NoGradGuard no_grad;
+  std::vector<AdamSegment> segments;
+  int64_t total = 0;
   for (auto& group : adam->param_groups()) {
     const auto& options =
         static_cast<const torch::optim::AdamOptions&>(group.options());
@@ -1671,22 +1761,43 @@ bool FusedAdamStep(torch::optim::Optimizer& optimizer) {
                  state.exp_avg_sq().is_contiguous() &&
                  p.scalar_type() == torch::kFloat)
           << "FusedAdamStep needs contiguous float tensors";
-      float* w = p.data_ptr<float>();
-      const float* g = p.grad().data_ptr<float>();
-      float* m = state.exp_avg().data_ptr<float>();
-      float* v = state.exp_avg_sq().data_ptr<float>();
-      const int64_t count = p.numel();
-      at::parallel_for(0, count, 4096, [&](int64_t begin, int64_t end) {
-        for (int64_t i = begin; i < end; ++i) {
-          const float grad = g[i] + wd * w[i];
-          m[i] = m[i] * b1 + (1.0f - b1) * grad;
-          v[i] = v[i] * b2 + (1.0f - b2) * grad * grad;
-          const float denom = std::sqrt(v[i]) * inv_bc2_sqrt + eps;
-          w[i] -= step_size * m[i] / denom;
-        }
-      });
+      AdamSegment segment;
+      segment.w = p.data_ptr<float>();
+      segment.g = p.grad().data_ptr<float>();
+      segment.m = state.exp_avg().data_ptr<float>();
+      segment.v = state.exp_avg_sq().data_ptr<float>();
+      segment.count = p.numel();
+      segment.step_size = step_size;
+      segment.inv_bc2_sqrt = inv_bc2_sqrt;
+      segment.b1 = b1;
+      segment.b2 = b2;
+      segment.eps = eps;
+      segment.wd = wd;
+      segment.offset = total;
+      total += segment.count;
+      segments.push_back(segment);
     }
   }
+  // All parameters in one parallel loop over their concatenated elements.
+  internal::FastParallelFor(0, total, 16384, [&](int64_t begin, int64_t end) {
+    auto it = std::upper_bound(
+        segments.begin(),
+        segments.end(),
+        begin,
+        [](int64_t value, const AdamSegment& s) { return value < s.offset; });
+    for (--it; it != segments.end() && it->offset < end; ++it) {
+      const AdamSegment& s = *it;
+      const int64_t i0 = std::max<int64_t>(begin - s.offset, 0);
+      const int64_t i1 = std::min<int64_t>(end - s.offset, s.count);
+      for (int64_t i = i0; i < i1; ++i) {
+        const float grad = s.g[i] + s.wd * s.w[i];
+        s.m[i] = s.m[i] * s.b1 + (1.0f - s.b1) * grad;
+        s.v[i] = s.v[i] * s.b2 + (1.0f - s.b2) * grad * grad;
+        const float denom = std::sqrt(s.v[i]) * s.inv_bc2_sqrt + s.eps;
+        s.w[i] -= s.step_size * s.m[i] / denom;
+      }
+    }
+  });
   return true;
 }
 

@@ -136,10 +136,11 @@ class LinearOp {
   std::vector<int64_t> in_order_;
   int64_t in_ = 0;
   int64_t out_ = 0;
-  internal::AlignedFloats wt_;    // in x RoundUp16(out): forward view
-  internal::AlignedFloats bias_;  // RoundUp16(out)
-  internal::AlignedFloats w_;     // out x RoundUp16(in): backward view
-  internal::AlignedFloats dw_;    // out x RoundUp16(in)
+  internal::AlignedFloats wt_;          // in x RoundUp16(out): forward view
+  internal::AlignedFloats bias_;        // RoundUp16(out)
+  internal::AlignedFloats w_;           // out x RoundUp16(in): backward view
+  internal::AlignedFloats dw_;          // out x RoundUp16(in)
+  internal::AlignedFloats dw_partial_;  // per row range: out x RoundUp16(in)
   std::vector<double> db_;
   // bf16 path: packed operands and per-thread scratch.
   internal::PackedBf16 fwd_b_;  // W^T

@@ -596,6 +596,51 @@ TEST(FastTrain, PaperSizeModelGradientsMatchAutograd) {
                   /*randomize=*/false);
 }
 
+TEST(FastTrain, StepIsTheSameOnOneAndTwoThreads) {
+  // The engine's parallel loops claim fixed chunks dynamically
+  // (fast_parallel.h) and its reductions sum fixed row ranges, so a step
+  // (and the fused Adam update after it) gives the same bits whatever the
+  // thread count and whichever thread ran a chunk. 30 frames of 40 points =
+  // 1,200 rows: two row ranges per column reduction.
+  torch::manual_seed(10);
+  const int previous_threads = torch::get_num_threads();
+  Labeler model = MakeLabeler(20, 2, 4, 24, 7, true, true);
+  Randomize(*model);
+  torch::Tensor points, labels;
+  MakeBatch(30, 40, 7, &points, &labels);
+  std::vector<std::vector<torch::Tensor>> states;
+  std::vector<double> losses;
+  for (int threads : {1, 2, 2}) {
+    torch::set_num_threads(threads);
+    Labeler copy = MakeLabeler(20, 2, 4, 24, 7, true, true);
+    CopyParameters(model, copy);
+    copy->train();
+    std::string why_not;
+    std::unique_ptr<FastTrainer> trainer = FastTrainer::Create(
+        *copy, SomaLabelingLoss(), FastTrainerOptions(), &why_not);
+    ASSERT_NE(trainer, nullptr) << why_not;
+    losses.push_back(trainer->Step(points, labels));
+    torch::optim::Adam adam(copy->parameters(),
+                            torch::optim::AdamOptions(1e-3));
+    std::vector<torch::Tensor> state;
+    for (const auto& [name, grad] : Grads(*copy)) state.push_back(grad);
+    ASSERT_TRUE(FusedAdamStep(adam));
+    for (const auto& p : copy->parameters())
+      state.push_back(p.detach().clone());
+    for (const auto& b : copy->buffers()) state.push_back(b.clone());
+    states.push_back(state);
+  }
+  torch::set_num_threads(previous_threads);
+  for (size_t run = 1; run < states.size(); ++run) {
+    EXPECT_EQ(losses[run], losses[0]) << "run " << run;
+    ASSERT_EQ(states[run].size(), states[0].size());
+    for (size_t i = 0; i < states[0].size(); ++i) {
+      EXPECT_TRUE(torch::equal(states[run][i], states[0][i]))
+          << "run " << run << ", tensor " << i;
+    }
+  }
+}
+
 TEST(FastTrain, Bf16ProductsMatchTheRoundedProduct) {
   if (!internal::AmxBf16Available()) GTEST_SKIP() << "no AMX-BF16 here";
   torch::manual_seed(10);
