@@ -81,8 +81,12 @@ struct ClaimCounts {
 /// tolerance). A claim whose cells have no finished seed is "not run". The
 /// verdict is about the means; `within_noise` flags a verdict whose boundary
 /// is under 2 standard errors from the gap.
+/// The outcomes point at `spec`'s claims, so `spec` must outlive them (a
+/// temporary spec is refused at compile time).
 std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
                                       const std::vector<CellResult>& cells);
+std::vector<ClaimOutcome> CheckClaims(
+    AblationSpec&& spec, const std::vector<CellResult>& cells) = delete;
 
 /// `outcomes` counted for one origin ("paper", "ours", "duplicate").
 ClaimCounts CountClaims(const std::vector<ClaimOutcome>& outcomes,

@@ -48,6 +48,14 @@ claims:
                            "demo.yaml");
 }
 
+// The spec the claim outcomes point into: it outlives every test's outcomes
+// (CheckClaims refuses a temporary; ASan found a test reading the claims of
+// a destroyed spec).
+const AblationSpec& TheSpec() {
+  static const AblationSpec* spec = new AblationSpec(Spec());
+  return *spec;
+}
+
 CellResult Cell(std::string variant,
                 std::string test,
                 std::vector<double> means,
@@ -120,7 +128,7 @@ TEST(ReportTest, ClaimsAreCheckedWithTheirGaps) {
 TEST(ReportTest, CloseClaimFailsOutsideItsTolerance) {
   std::vector<CellResult> cells = Cells();
   cells[1] = Cell("base", "t5", {90.0, 91.0, 92.0});
-  const ClaimOutcome out = CheckClaims(Spec(), cells)[2];
+  const ClaimOutcome out = CheckClaims(TheSpec(), cells)[2];
   EXPECT_EQ(out.verdict, "fail");
   // Every seed differs by 6: the paired s.e. is 0, the fail is resolved.
   EXPECT_FALSE(out.within_noise);
@@ -133,14 +141,14 @@ TEST(ReportTest, VerdictsNearTheirBoundaryAreWithinSeedNoise) {
   cells[1] = Cell("base", "t5", {91.0, 95.0, 96.0});
   // Greater claim: gap 0.5 with s.e. sqrt(1/3 + 1) = 1.15.
   cells[2] = Cell("weak", "t0", {96.5});
-  const std::vector<ClaimOutcome> out = CheckClaims(Spec(), cells);
+  const std::vector<ClaimOutcome> out = CheckClaims(TheSpec(), cells);
   EXPECT_EQ(out[2].verdict, "fail");
   EXPECT_NEAR(*out[2].gap_se, 1.0, 1e-12);
   EXPECT_TRUE(out[2].within_noise);
   EXPECT_EQ(out[0].verdict, "pass");
   EXPECT_TRUE(out[0].within_noise);
-  EXPECT_FALSE(CheckClaims(Spec(), Cells())[0].within_noise);  // gap 7
-  EXPECT_FALSE(CheckClaims(Spec(), Cells())[2].within_noise);
+  EXPECT_FALSE(CheckClaims(TheSpec(), Cells())[0].within_noise);  // gap 7
+  EXPECT_FALSE(CheckClaims(TheSpec(), Cells())[2].within_noise);
   EXPECT_FALSE(out[3].within_noise);  // not run
 
   const auto dir = testing::CreateTestDir();
@@ -157,13 +165,13 @@ TEST(ReportTest, PairedStandardErrorOnlyOverSharedSeeds) {
   // t5 has seeds 0 and 2 only: two shared seeds, differences 1.0 and 1.5.
   cells[1] = Cell("base", "t5", {95.0, 96.5});
   cells[1].seeds = {0, 2};
-  const ClaimOutcome out = CheckClaims(Spec(), cells)[2];
+  const ClaimOutcome out = CheckClaims(TheSpec(), cells)[2];
   EXPECT_TRUE(out.paired);
   EXPECT_NEAR(*out.gap_se, std::sqrt(0.125) / std::sqrt(2.0), 1e-12);
   // One shared seed: back to the unpaired estimate.
   cells[1] = Cell("base", "t5", {95.0});
   cells[1].seeds = {2};
-  EXPECT_FALSE(CheckClaims(Spec(), cells)[2].paired);
+  EXPECT_FALSE(CheckClaims(TheSpec(), cells)[2].paired);
 }
 
 TEST(ReportTest, ClaimsCsvHasOneRowPerClaimWithItsVerdict) {
@@ -191,7 +199,7 @@ TEST(ReportTest, ClaimsCsvHasOneRowPerClaimWithItsVerdict) {
 
 TEST(ReportTest, ClaimsAreCountedByWhoseTheyAre) {
   std::vector<CellResult> cells = Cells();
-  const std::vector<ClaimOutcome> outcomes = CheckClaims(Spec(), cells);
+  const std::vector<ClaimOutcome> outcomes = CheckClaims(TheSpec(), cells);
   const ClaimCounts paper = CountClaims(outcomes, "paper");
   EXPECT_EQ(paper.claims, 3);
   EXPECT_EQ(paper.pass, 2);
