@@ -8,7 +8,10 @@
 
 #include <cstdlib>
 #include <fstream>
+#include <functional>
+#include <mutex>
 #include <unistd.h>
+#include <utility>
 
 namespace soma::testing {
 
@@ -46,6 +49,25 @@ void WriteTextFile(const std::filesystem::path& dir,
   std::ofstream out(path, std::ios::binary);
   SOMA_CHECK(static_cast<bool>(out)) << "cannot write " << path.string();
   out << contents;
+}
+
+namespace {
+
+class SetUpOnce : public ::testing::Environment {
+ public:
+  explicit SetUpOnce(std::function<void()> set_up)
+      : set_up_(std::move(set_up)) {}
+  void SetUp() override { std::call_once(once_, set_up_); }
+
+ private:
+  std::function<void()> set_up_;
+  std::once_flag once_;
+};
+
+}  // namespace
+
+::testing::Environment* AddSetUpOnce(std::function<void()> set_up) {
+  return ::testing::AddGlobalTestEnvironment(new SetUpOnce(std::move(set_up)));
 }
 
 }  // namespace soma::testing

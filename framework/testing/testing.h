@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include <filesystem>
+#include <functional>
 #include <string>
 
 namespace soma::testing {
@@ -36,5 +37,14 @@ std::string ErrorMessage(Fn&& fn) {
   ADD_FAILURE() << "expected an exception";
   return "";
 }
+
+/// Adds a gtest environment that runs `set_up` once, before the first test
+/// of the executable. For a test executable that builds components through
+/// the global registries without the whole framework: `set_up` makes the
+/// registrations InitFramework() makes for the modules it links, in its order,
+/// and freezes the registries (tests/<module>/registrations.cc). Call it from
+/// a namespace-scope initializer of the executable's own object file (a static
+/// library would drop that object).
+::testing::Environment* AddSetUpOnce(std::function<void()> set_up);
 
 }  // namespace soma::testing

@@ -7,28 +7,19 @@
 #include "framework/body/body_source.h"
 #include "framework/motion/motion_source.h"
 #include "framework/registry/registry.h"
+#include "framework/testing/testing.h"
 
 #include <gtest/gtest.h>
-
-#include <mutex>
 
 namespace soma {
 namespace {
 
-class Registrations : public ::testing::Environment {
- public:
-  void SetUp() override {
-    static std::once_flag once;
-    std::call_once(once, [] {
+[[maybe_unused]] ::testing::Environment* const kRegistrations =
+    testing::AddSetUpOnce([] {
       RegisterBodySources();
       RegisterMotionSources();
       FreezeRegistries();
     });
-  }
-};
-
-[[maybe_unused]] ::testing::Environment* const kRegistrations =
-    ::testing::AddGlobalTestEnvironment(new Registrations);
 
 }  // namespace
 }  // namespace soma

@@ -10,19 +10,15 @@
 #include "framework/registry/registry.h"
 #include "framework/solve/pose_prior.h"
 #include "framework/stream/frame_source.h"
+#include "framework/testing/testing.h"
 
 #include <gtest/gtest.h>
-
-#include <mutex>
 
 namespace soma {
 namespace {
 
-class Registrations : public ::testing::Environment {
- public:
-  void SetUp() override {
-    static std::once_flag once;
-    std::call_once(once, [] {
+[[maybe_unused]] ::testing::Environment* const kRegistrations =
+    testing::AddSetUpOnce([] {
       RegisterBodySources();
       RegisterMotionSources();
       RegisterPosePriors();
@@ -30,11 +26,6 @@ class Registrations : public ::testing::Environment {
       RegisterFrameSources();
       FreezeRegistries();
     });
-  }
-};
-
-[[maybe_unused]] ::testing::Environment* const kRegistrations =
-    ::testing::AddGlobalTestEnvironment(new Registrations);
 
 }  // namespace
 }  // namespace soma

@@ -9,20 +9,16 @@
 #include "framework/motion/motion_source.h"
 #include "framework/registry/registry.h"
 #include "framework/synth/register.h"
+#include "framework/testing/testing.h"
 #include "framework/train/register.h"
 
 #include <gtest/gtest.h>
 
-#include <mutex>
-
 namespace soma {
 namespace {
 
-class Registrations : public ::testing::Environment {
- public:
-  void SetUp() override {
-    static std::once_flag once;
-    std::call_once(once, [] {
+[[maybe_unused]] ::testing::Environment* const kRegistrations =
+    testing::AddSetUpOnce([] {
       RegisterBodySources();
       RegisterMotionSources();
       RegisterSynthComponents();
@@ -30,11 +26,6 @@ class Registrations : public ::testing::Environment {
       RegisterTrainComponents();
       FreezeRegistries();
     });
-  }
-};
-
-[[maybe_unused]] ::testing::Environment* const kRegistrations =
-    ::testing::AddGlobalTestEnvironment(new Registrations);
 
 }  // namespace
 }  // namespace soma
