@@ -373,6 +373,21 @@ std::string FormatString(const ConfigNode& node, bool top_level) {
       !escapes_next) {
     return text;
   }
+  // A `${` that opens no complete interpolation cannot be quoted: the lexer
+  // would read an interpolation from it through the closing quote (`'${'}`).
+  // Written unquoted with its special characters escaped (`$\{`) it reads
+  // back as the same string.
+  for (size_t i = 0; i + 1 < text.size(); ++i) {
+    if (text[i] == '$' && text[i + 1] == '{' &&
+        MatchInterpolation(text, i) == 0) {
+      const std::string escaped = EscapeDictKey(text);
+      const std::optional<ConfigNode> back = TryParseStandaloneValue(escaped);
+      if (back && back->type() == node.type() && back->text() == text) {
+        return escaped;
+      }
+      break;
+    }
+  }
   return SingleQuote(text);
 }
 

@@ -810,6 +810,21 @@ TEST(OverrideToString, KeepsQuotesInsideInterpolationsOfQuotedStrings) {
   EXPECT_EQ(*again.value, *o.value);
 }
 
+// Found by an exploratory override-fuzzer session
+// (tests/fuzz/corpus/override/): the string `${` (from the escaped `$\{`) opens
+// no interpolation; quoted as
+// `'${'` the lexer read an interpolation through the closing quote and the
+// `}` after it. It is written unquoted with its braces escaped instead.
+TEST(OverrideToString, WritesAnUnclosedInterpolationOpenerEscaped) {
+  const Override o = ParseOverride(R"(d={a:$\{})");
+  ASSERT_TRUE(o.value.has_value());
+  EXPECT_EQ(o.value->at("a").text(), "${");
+  EXPECT_EQ(o.ToString(), R"(d={a:$\{})");
+  const Override again = ParseOverride(o.ToString());
+  ASSERT_TRUE(again.value.has_value());
+  EXPECT_EQ(*again.value, *o.value);
+}
+
 TEST(OverrideToString, IsCanonical) {
   const std::vector<std::pair<std::string, std::string>> cases = {
       {"a=1", "a=1"},
