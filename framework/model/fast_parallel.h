@@ -8,6 +8,12 @@
 //
 // Chunk boundaries depend only on the loop size and the grain, never on which
 // thread runs a chunk, so results are deterministic.
+//
+// The pool is one per process, created on first use and never destroyed: a
+// deliberate exception to the no-global-state rule (STYLE.md), for the same
+// reason the OpenMP runtime keeps one: worker threads are a process resource,
+// and a pool per engine would put two sets of spinning threads on the same
+// cores. It holds no results or configuration, only threads.
 #pragma once
 
 #include <cstdint>
