@@ -464,19 +464,11 @@ void RegisterLabelTask(Registry<Task>& registry) {
     }
     reader.Read("model", &options.model);
     reader.Read("tracklet", &options.tracklet);
-    reader.Read("min_confidence", &options.min_confidence);
-    reader.Check("min_confidence",
-                 options.min_confidence >= 0 && options.min_confidence <= 1,
-                 "0 <= min_confidence <= 1");
-    reader.Read("review_gap", &options.review_gap);
-    reader.Check("review_gap", options.review_gap >= 0, "review_gap >= 0");
-    if (const ConfigNode* calibration = node.Find("calibration");
-        calibration != nullptr && calibration->IsNull()) {
-      reader.Ignore("calibration");
-      options.calibration = "none";
-    } else {
-      reader.Read("calibration", &options.calibration);
-    }
+    ReadConfidenceKeys(node,
+                       reader,
+                       &options.min_confidence,
+                       &options.review_gap,
+                       &options.calibration);
     if (const ConfigNode* inference = reader.Child("inference")) {
       options.inference = DecodeInferenceOptions(*inference);
     }

@@ -1,5 +1,6 @@
 #include "framework/tasks/task.h"
 
+#include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/registry/registry.h"
 
@@ -62,6 +63,26 @@ void RunConfiguredTask(const ConfigNode& cfg, RunContext& ctx) {
   BuildContext build(ctx.seed, ctx.output_dir.string());
   std::unique_ptr<Task> task = Instantiate<Task>(*task_node, build);
   task->Run(cfg, ctx);
+}
+
+void ReadConfidenceKeys(const ConfigNode& node,
+                        ConfigReader& reader,
+                        double* min_confidence,
+                        int* review_gap,
+                        std::string* calibration) {
+  reader.Read("min_confidence", min_confidence);
+  reader.Check("min_confidence",
+               *min_confidence >= 0 && *min_confidence <= 1,
+               "0 <= min_confidence <= 1");
+  reader.Read("review_gap", review_gap);
+  reader.Check("review_gap", *review_gap >= 0, "review_gap >= 0");
+  if (const ConfigNode* value = node.Find("calibration");
+      value != nullptr && value->IsNull()) {
+    reader.Ignore("calibration");
+    *calibration = "none";
+  } else {
+    reader.Read("calibration", calibration);
+  }
 }
 
 }  // namespace soma

@@ -5,9 +5,12 @@
 #include "framework/config/app.h"
 #include "framework/config/node.h"
 
+#include <string>
 #include <string_view>
 
 namespace soma {
+
+class ConfigReader;
 
 /// A runnable job (demo now; synth, train, label, eval, solve as their
 /// modules land). Implementations are thin: decode options, call the
@@ -28,5 +31,15 @@ void RegisterTasks();
 /// The TaskFn of the `soma` executable: builds `cfg.task` through the
 /// registry and runs it.
 void RunConfiguredTask(const ConfigNode& cfg, RunContext& ctx);
+
+/// Reads the confidence keys `label` and `label_eval` share from the task
+/// node `node` (through its `reader`): `min_confidence` in [0, 1],
+/// `review_gap` >= 0 and `calibration` (auto | none | a calibration.yaml; null
+/// means none).
+void ReadConfidenceKeys(const ConfigNode& node,
+                        ConfigReader& reader,
+                        double* min_confidence,
+                        int* review_gap,
+                        std::string* calibration);
 
 }  // namespace soma
