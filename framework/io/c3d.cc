@@ -3,6 +3,7 @@
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
+#include "framework/io/line_error.h"
 
 #include <fmt/format.h>
 
@@ -134,22 +135,6 @@ std::string Trim(std::string_view s) {
   while (begin < end && IsBlank(s[begin])) ++begin;
   while (end > begin && IsBlank(s[end - 1])) --end;
   return std::string(s.substr(begin, end - begin));
-}
-
-// `text` for a one-line error message: at most 60 bytes, control and
-// non-ASCII bytes as \xNN.
-std::string ForMessage(std::string_view text) {
-  std::string out;
-  for (size_t i = 0; i < text.size() && i < 60; ++i) {
-    const auto c = static_cast<unsigned char>(text[i]);
-    if (c < 0x20 || c >= 0x7f) {
-      out += fmt::format("\\x{:02x}", c);
-    } else {
-      out.push_back(static_cast<char>(c));
-    }
-  }
-  if (text.size() > 60) out += "...";
-  return out;
 }
 
 // Product of dims, 0 if any dim is 0, saturating at INT64_MAX.

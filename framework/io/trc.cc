@@ -3,6 +3,7 @@
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
+#include "framework/io/line_error.h"
 
 #include <fmt/format.h>
 
@@ -79,22 +80,6 @@ bool EqualsIgnoreCase(std::string_view a, std::string_view b) {
     if (lower(a[i]) != lower(b[i])) return false;
   }
   return true;
-}
-
-// `text` for a one-line error message: at most 60 bytes, control and
-// non-ASCII bytes as \xNN.
-std::string ForMessage(std::string_view text) {
-  std::string out;
-  for (size_t i = 0; i < text.size() && i < 60; ++i) {
-    const auto c = static_cast<unsigned char>(text[i]);
-    if (c < 0x20 || c >= 0x7f) {
-      out += fmt::format("\\x{:02x}", c);
-    } else {
-      out.push_back(static_cast<char>(c));
-    }
-  }
-  if (text.size() > 60) out += "...";
-  return out;
 }
 
 bool IsNanText(std::string_view cell) {
