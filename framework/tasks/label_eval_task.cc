@@ -49,6 +49,7 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <set>
 
 namespace soma {
 namespace {
@@ -237,6 +238,26 @@ class LabelEvalTask : public Task {
 
     // 2. The take, corrupted by the paper's protocol.
     const LabeledSequence clean = ReadLabeledC3d(input, info.labels);
+    {
+      std::set<std::string> present;
+      for (const std::string& c : clean.column_names) {
+        present.insert(CanonicalMarkerLabel(c));
+      }
+      std::vector<std::string> lacking;
+      for (const std::string& label : info.labels) {
+        if (present.count(CanonicalMarkerLabel(label)) == 0) {
+          lacking.push_back(label);
+        }
+      }
+      if (!lacking.empty()) {
+        SOMA_LOG(WARNING,
+                 "label_eval: {} of the labeller's {} labels are not in {}: {}",
+                 lacking.size(),
+                 info.labels.size(),
+                 options_.input,
+                 fmt::join(lacking, " "));
+      }
+    }
     const CorruptionSetting setting =
         ParseCorruptionSettingName(options_.setting);
     if (const std::string reason = CorruptionSkipReason(clean, setting);
