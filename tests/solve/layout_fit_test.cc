@@ -212,8 +212,22 @@ TEST(CaptureLayout, PlugInGaitTakeGetsEveryMarkerUnderItsOwnName) {
     EXPECT_GE(r.layout.FindLabel(label), 0) << label;
   }
   EXPECT_LT(r.layout.FindLabel("LFWT"), 0);
-  // Plug-in Gait's segment origins and joint centres are not skin markers.
-  EXPECT_GT(r.not_placed, 0);
+  // Plug-in Gait's segment origins and joint centres are not skin markers:
+  // some are far from the skin, some deep inside (RFEO, the right knee's
+  // joint centre).
+  int inside = 0, too_far = 0;
+  for (const CaptureLayoutMarker& m : r.markers) {
+    inside += m.placement == MarkerPlacement::kInside;
+    too_far += m.placement == MarkerPlacement::kTooFar;
+  }
+  EXPECT_GT(inside, 0);
+  EXPECT_GT(too_far, 0);
+  EXPECT_EQ(
+      r.markers[std::find(
+                    capture.labels.begin(), capture.labels.end(), "RFEO") -
+                capture.labels.begin()]
+          .placement,
+      MarkerPlacement::kInside);
   EXPECT_LT(r.layout_rms_m, kLayoutRmsBound);
   EXPECT_FALSE(CaptureLayoutToCsv(r).empty());
   // The written layout loads back on the body (labels the alias table does
@@ -309,6 +323,69 @@ TEST(CaptureLayout, NameMapMakesACaptureUnderOtherNamesFittable) {
               label == "RBAC-1" ? label : "marker_" + label);
   }
   EXPECT_NEAR(renamed.layout_rms_m, direct.layout_rms_m, 1e-9);
+}
+
+TEST(CaptureLayout, MissingFarAndInnerPointsAreReportedNotPlaced) {
+  Capture capture = ReadCapture("cmu_01_01.c3d");
+  const CaptureLayoutResult direct = FitCapture(capture);
+  const int frame = direct.frame;
+  const auto column = [&](const std::string& label) {
+    for (size_t c = 0; c < capture.labels.size(); ++c) {
+      if (StripSubjectPrefix(capture.labels[c]) == label) return int(c);
+    }
+    ADD_FAILURE() << label;
+    return 0;
+  };
+  Eigen::Matrix3Xd& f = capture.frames[frame];
+  const Eigen::Vector3d lfhd = f.col(column("LFHD"));
+  const Eigen::Vector3d pelvis =
+      0.25 * (f.col(column("LFWT")) + f.col(column("RFWT")) +
+              f.col(column("LBWT")) + f.col(column("RBWT")));
+  const Eigen::Vector3d strn = f.col(column("STRN"));
+  f.col(column("T10")).setConstant(std::nan(""));  // missing in the frame
+  // Three extra columns: a prop 1 m off, the pelvis centre, a new marker 5 mm
+  // from the sternum marker.
+  for (Eigen::Matrix3Xd& frame_points : capture.frames) {
+    frame_points.conservativeResize(Eigen::NoChange, frame_points.cols() + 3);
+    frame_points.col(frame_points.cols() - 3) = lfhd + Eigen::Vector3d(0, 0, 1);
+    frame_points.col(frame_points.cols() - 2) = pelvis;
+    frame_points.col(frame_points.cols() - 1) =
+        strn + Eigen::Vector3d(0, 0, -0.005);
+  }
+  capture.labels.insert(capture.labels.end(), {"PROP", "PELVIS", "NEWMK"});
+  const BodyModel& body = ProceduralBody();
+  const GaussianPosePrior prior =
+      ProceduralPosePrior(body, ProceduralPosePriorOptions{});
+  const CaptureLayoutResult r =
+      FitCaptureLayout(body,
+                       MakeBuiltinLayout(body, "superset89"),
+                       capture.labels,
+                       {},
+                       capture.frames,
+                       frame,
+                       &prior,
+                       CaptureLayoutOptions{},
+                       StageIOptions{},
+                       StageIIOptions{});
+  ExpectEveryMarkerPlacedOrReported(r);
+  const int n = static_cast<int>(r.markers.size());
+  EXPECT_EQ(r.markers[column("T10")].placement, MarkerPlacement::kMissing);
+  EXPECT_LT(r.layout.FindLabel("T10"), 0);
+  EXPECT_EQ(r.markers[n - 3].placement, MarkerPlacement::kTooFar);
+  const MarkerPlacement inner = r.markers[n - 2].placement;
+  EXPECT_TRUE(inner == MarkerPlacement::kInside ||
+              inner == MarkerPlacement::kTooFar)
+      << ToString(inner) << " " << r.markers[n - 2].skin_distance_m;
+  EXPECT_EQ(r.markers[n - 1].placement, MarkerPlacement::kPlaced);
+  EXPECT_GE(r.layout.FindLabel("NEWMK"), 0);
+  EXPECT_EQ(r.placed, direct.placed - 1 + 1);  // - T10 + NEWMK
+  // Options are checked.
+  CaptureLayoutOptions bad;
+  bad.min_recognised = 2;
+  EXPECT_THROW(bad.Validate(), ConfigError);
+  bad = CaptureLayoutOptions{};
+  bad.max_skin_distance_m = 0.0;
+  EXPECT_THROW(bad.Validate(), ConfigError);
 }
 
 TEST(CaptureLayout, NearestSurfacePointIsOnTheClosestFace) {
