@@ -388,6 +388,40 @@ TEST(CaptureLayout, MissingFarAndInnerPointsAreReportedNotPlaced) {
   EXPECT_THROW(bad.Validate(), ConfigError);
 }
 
+TEST(CaptureLayout, AKnownMarkerSetGivesTodaysLayout) {
+  // HDM05 frame 0 (every marker known): the same vertices and re-posed RMS
+  // as FitLayoutToFrame on the markers matched by MatchToLayout.
+  const BodyModel& body = ProceduralBody();
+  const MarkerLayout cmu41 = MakeBuiltinLayout(body, "cmu41");
+  const GaussianPosePrior prior =
+      ProceduralPosePrior(body, ProceduralPosePriorOptions{});
+  const C3dData c3d = ReadC3d(soma::testing::SharedDataDir() / "c3d" /
+                              "HDM_mm_01-02_03_120.c3d");
+  const LayoutFitResult today = FitLayoutToFrame(
+      body, cmu41, MatchToLayout(c3d, cmu41), 0, &prior, StageIOptions{});
+  Capture capture;
+  CaptureMarkerColumns(c3d, &capture.labels, &capture.frames);
+  const CaptureLayoutResult r = FitCaptureLayout(body,
+                                                 cmu41,
+                                                 capture.labels,
+                                                 {},
+                                                 capture.frames,
+                                                 0,
+                                                 &prior,
+                                                 CaptureLayoutOptions{},
+                                                 StageIOptions{},
+                                                 StageIIOptions{});
+  ASSERT_EQ(r.placed, 41);
+  for (const MarkerLayout::Marker& m : today.layout.markers) {
+    const int i = r.layout.FindLabel(m.label);
+    ASSERT_GE(i, 0) << m.label;
+    EXPECT_EQ(r.layout.markers[i].vertex_ids, m.vertex_ids) << m.label;
+    EXPECT_EQ(r.layout.markers[i].type, m.type) << m.label;
+  }
+  EXPECT_NEAR(r.layout_rms_m, today.layout_rms_m, 1e-9);
+  EXPECT_NEAR(r.fit.rms_m, today.rms_m, 1e-9);
+}
+
 TEST(CaptureLayout, NearestSurfacePointIsOnTheClosestFace) {
   Eigen::Matrix3Xd v(3, 4);
   v << 0, 1, 0, 0,  //
