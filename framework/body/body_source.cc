@@ -131,11 +131,13 @@ class BuiltinLayoutSource : public LayoutSource {
 
 class FileLayoutSource : public LayoutSource {
  public:
-  FileLayoutSource(std::string path, std::vector<std::string> exclude)
-      : path_(std::move(path)), exclude_(std::move(exclude)) {}
+  FileLayoutSource(std::string path,
+                   std::vector<std::string> exclude,
+                   LayoutCheckOptions check)
+      : path_(std::move(path)), exclude_(std::move(exclude)), check_(check) {}
   MarkerLayout Build(const BodyModel& body) const override {
     return ExcludeMarkers(
-        LoadMarkerLayoutForBody(path_, body), exclude_, kExcludeKey);
+        LoadMarkerLayoutForBody(path_, body, check_), exclude_, kExcludeKey);
   }
   std::vector<std::string> Labels() const override {
     MarkerLayout file = CanonicalizeLayout(ReadMarkerLayout(path_));
@@ -146,6 +148,7 @@ class FileLayoutSource : public LayoutSource {
  private:
   std::string path_;
   std::vector<std::string> exclude_;
+  LayoutCheckOptions check_;
 };
 
 }  // namespace
@@ -186,8 +189,10 @@ void RegisterBodySources() {
     reader.Require("path", &path);
     std::vector<std::string> exclude;
     reader.Read("exclude", &exclude);
+    LayoutCheckOptions check;
+    reader.Read("allow_unknown_labels", &check.allow_unknown_labels);
     reader.Finish();
-    return std::make_unique<FileLayoutSource>(path, exclude);
+    return std::make_unique<FileLayoutSource>(path, exclude, check);
   });
   RegisterConfigGroup<LayoutSource>("layout");
 }

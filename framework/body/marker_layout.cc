@@ -1,6 +1,7 @@
 #include "framework/body/marker_layout.h"
 
 #include "framework/body/json.h"
+#include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 
@@ -769,6 +770,128 @@ const std::vector<MarkerLabelAlias>& MarkerLabelAliases() {
     return list;
   }();
   return *kList;
+}
+
+namespace {
+
+/// The subject prefix stripped, upper-cased: how name-map keys and capture
+/// labels are compared.
+std::string NameMapKey(std::string_view label) {
+  std::string name(StripSubjectPrefix(label));
+  for (char& c : name)
+    c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  return name;
+}
+
+std::string_view NodeTypeName(const ConfigNode& node) {
+  if (node.IsNull()) return "null";
+  if (node.IsBool()) return "a bool";
+  if (node.IsInt()) return "an int";
+  if (node.IsDouble()) return "a float";
+  if (node.IsList()) return "a list";
+  if (node.IsMap()) return "a mapping";
+  if (node.IsMissing()) return "???";
+  return "an interpolation";
+}
+
+}  // namespace
+
+std::string MarkerNameMap::Apply(std::string_view label) const {
+  const std::string key = NameMapKey(label);
+  for (const auto& [theirs, ours] : entries) {
+    if (NameMapKey(theirs) == key) return ours;
+  }
+  return std::string(label);
+}
+
+std::vector<std::string> MarkerNameMap::Apply(
+    const std::vector<std::string>& labels) const {
+  std::vector<std::string> out;
+  out.reserve(labels.size());
+  for (const std::string& label : labels) out.push_back(Apply(label));
+  return out;
+}
+
+MarkerNameMap ParseMarkerNameMap(std::string_view yaml_text,
+                                 std::string_view source) {
+  ConfigNode root;
+  try {
+    root = ParseYaml(yaml_text, source);
+  } catch (const Error& e) {
+    throw IoError(fmt::format(
+        "{} (a name map: one YAML mapping their_name: our_name)", e.what()));
+  }
+  MarkerNameMap map;
+  map.source = std::string(source);
+  if (root.IsNull()) return map;
+  if (!root.IsMap()) {
+    throw IoError(
+        fmt::format("{}: expected one mapping `their_name: our_name`, got {}",
+                    source,
+                    NodeTypeName(root)));
+  }
+  std::map<std::string, std::string> seen;  // key -> first key as written
+  for (const auto& [key, value] : root.entries()) {
+    if (!value.IsString()) {
+      throw IoError(fmt::format(
+          "{}: {}: expected our marker name (a string), got {} ({}); quote "
+          "names YAML reads otherwise",
+          source,
+          key,
+          NodeTypeName(value),
+          value.text()));
+    }
+    const std::string& ours = value.AsString();
+    if (NameMapKey(key).empty() || NameMapKey(ours).empty()) {
+      throw IoError(fmt::format("{}: {}: empty marker name", source, key));
+    }
+    const auto [it, inserted] = seen.emplace(NameMapKey(key), key);
+    if (!inserted) {
+      throw IoError(fmt::format(
+          "{}: {}: the same capture name as {} (case and subject prefix are "
+          "ignored)",
+          source,
+          key,
+          it->second));
+    }
+    map.entries.emplace_back(key, ours);
+  }
+  return map;
+}
+
+MarkerNameMap ReadMarkerNameMap(const std::filesystem::path& path) {
+  return ParseMarkerNameMap(ReadFile(path), path.string());
+}
+
+void CheckMarkerNameMap(const MarkerNameMap& map,
+                        const std::vector<std::string>& labels,
+                        std::string_view what) {
+  std::set<std::string> known;
+  for (const std::string& label : labels) {
+    known.insert(CanonicalMarkerLabel(label));
+  }
+  std::map<std::string, std::string> target_of;  // canonical target -> key
+  for (const auto& [theirs, ours] : map.entries) {
+    const std::string target = CanonicalMarkerLabel(ours);
+    if (known.count(target) == 0) {
+      throw IoError(
+          fmt::format("{}: {}: {} is not a label of {} ({} labels: {})",
+                      map.source,
+                      theirs,
+                      ours,
+                      what,
+                      labels.size(),
+                      fmt::join(labels, " ")));
+    }
+    const auto [it, inserted] = target_of.emplace(target, theirs);
+    if (!inserted) {
+      throw IoError(fmt::format("{}: {}: maps onto {}, as {} does already",
+                                map.source,
+                                theirs,
+                                ours,
+                                it->second));
+    }
+  }
 }
 
 std::string CanonicalMarkerLabel(std::string_view label) {

@@ -142,6 +142,45 @@ struct MergeLayoutsOptions {
 MarkerLayout MergeLayouts(const std::vector<MarkerLayout>& layouts,
                           const MergeLayoutsOptions& options = {});
 
+// ---- Name maps (`task.name_map`): a user's marker names onto ours.
+
+/// A name map file: one YAML mapping `their_name: our_name`, e.g.
+///   LeftKnee: LKNE
+///   Hips_L: LFWT
+/// Keys are compared to capture labels without the subject prefix and
+/// case-insensitively (like CanonicalMarkerLabel, but without aliases); the
+/// map is applied before the alias table.
+struct MarkerNameMap {
+  std::string source;  // the file, for messages
+  /// (their name as written, our name as written), file order.
+  std::vector<std::pair<std::string, std::string>> entries;
+
+  bool empty() const { return entries.empty(); }
+  /// Our name for a capture label `label` (subject prefix ignored), or
+  /// `label` unchanged when the map does not name it.
+  std::string Apply(std::string_view label) const;
+  std::vector<std::string> Apply(const std::vector<std::string>& labels) const;
+};
+
+/// Parses a name map. IoError "<source>: <key>: ..." (one line) for
+/// malformed YAML, a top level that is not a mapping, a value that is not a
+/// string (number, bool, null, list, mapping), an empty name, and two keys
+/// that are the same label (case and subject prefix ignored).
+MarkerNameMap ParseMarkerNameMap(std::string_view yaml_text,
+                                 std::string_view source);
+
+/// ReadFile + ParseMarkerNameMap (IoError naming the file if unreadable).
+MarkerNameMap ReadMarkerNameMap(const std::filesystem::path& path);
+
+/// Checks a name map against the labels it maps onto (a layout's or a
+/// labeller's, compared through CanonicalMarkerLabel): IoError naming the
+/// file and key for a target that is not one of `labels` (listing them), or
+/// for two keys mapped onto the same label. `what` names the labels in the
+/// message, e.g. "the layout" or "the labeller".
+void CheckMarkerNameMap(const MarkerNameMap& map,
+                        const std::vector<std::string>& labels,
+                        std::string_view what);
+
 // ---- Validation against a body.
 
 struct LayoutCheckOptions {

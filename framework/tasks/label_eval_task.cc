@@ -29,12 +29,14 @@
 //    `<mode>_ece` (at T), `<mode>_ece_raw`, `<mode>_coverage_at_precision`
 //    (the largest coverage at precision >= task.target_precision) and
 //    `<mode>_threshold_at_precision`, and a table in summary.md.
+#include "framework/body/marker_layout.h"
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
 #include "framework/core/timer.h"
 #include "framework/eval/calibration.h"
+#include "framework/io/c3d.h"
 #include "framework/io/mocap_dataset.h"
 #include "framework/registry/registry.h"
 #include "framework/synth/corruption.h"
@@ -47,6 +49,7 @@
 #include <cmath>
 #include <filesystem>
 #include <map>
+#include <set>
 
 namespace soma {
 namespace {
@@ -58,6 +61,7 @@ struct LabelEvalOptions {
   std::string setting = "OC_05_G_03_BT_00";
   std::string checkpoint;  // empty: a bundled model
   std::string model = "auto";
+  std::string name_map;              // "" or their_name: our_name (YAML)
   double min_confidence = 0.0;       // handed to the label task
   int review_gap = 0;                // handed to the label task
   std::string calibration = "auto";  // handed to the label task
@@ -78,6 +82,7 @@ LabelEvalOptions DecodeLabelEvalOptions(const ConfigNode& node) {
     reader.Read("checkpoint", &options.checkpoint);
   }
   reader.Read("model", &options.model);
+  reader.Read("name_map", &options.name_map);
   ReadConfidenceKeys(node,
                      reader,
                      &options.min_confidence,
@@ -196,12 +201,30 @@ class LabelEvalTask : public Task {
                       "C3D take)",
                       options_.input));
     }
+    // The take under our names (task.name_map): a renamed copy, read from
+    // here on.
+    std::string input = options_.input;
+    MarkerNameMap name_map;
+    if (!options_.name_map.empty()) {
+      name_map = ReadMarkerNameMap(options_.name_map);
+      C3dData c3d = ReadC3d(input);
+      c3d.labels = name_map.Apply(c3d.labels);
+      const fs::path renamed = ctx.output_dir / "renamed";
+      CreateDirectories(renamed);
+      input = (renamed / fs::path(input).filename()).string();
+      WriteC3d(input, c3d);
+      SOMA_LOG(INFO,
+               "label_eval: {} names mapped by {}: {}",
+               name_map.entries.size(),
+               options_.name_map,
+               input);
+    }
     // 1. The labeller.
     std::string checkpoint = options_.checkpoint;
     std::string labeller = checkpoint;
     if (checkpoint.empty()) {
-      const BundledChoice choice = ChooseInstalledModel(
-          SummarizeCapture(options_.input), options_.model);
+      const BundledChoice choice =
+          ChooseInstalledModel(SummarizeCapture(input), options_.model);
       SOMA_LOG(INFO, "label_eval: {}", choice.reason);
       checkpoint = choice.model.checkpoint.string();
       labeller = fmt::format("bundled model `{}` ({})",
@@ -209,9 +232,32 @@ class LabelEvalTask : public Task {
                              choice.model.description);
     }
     const CheckpointInfo info = ReadCheckpointInfo(checkpoint);
+    if (!name_map.empty()) {
+      CheckMarkerNameMap(name_map, info.labels, "the labeller");
+    }
 
     // 2. The take, corrupted by the paper's protocol.
-    const LabeledSequence clean = ReadLabeledC3d(options_.input, info.labels);
+    const LabeledSequence clean = ReadLabeledC3d(input, info.labels);
+    {
+      std::set<std::string> present;
+      for (const std::string& c : clean.column_names) {
+        present.insert(CanonicalMarkerLabel(c));
+      }
+      std::vector<std::string> lacking;
+      for (const std::string& label : info.labels) {
+        if (present.count(CanonicalMarkerLabel(label)) == 0) {
+          lacking.push_back(label);
+        }
+      }
+      if (!lacking.empty()) {
+        SOMA_LOG(WARNING,
+                 "label_eval: {} of the labeller's {} labels are not in {}: {}",
+                 lacking.size(),
+                 info.labels.size(),
+                 options_.input,
+                 fmt::join(lacking, " "));
+      }
+    }
     const CorruptionSetting setting =
         ParseCorruptionSettingName(options_.setting);
     if (const std::string reason = CorruptionSkipReason(clean, setting);

@@ -46,6 +46,7 @@
 //    indices from 0, the first frame of the capture; the frames of the run
 //    below the threshold; the lowest probability in it), sorted by first
 //    frame; only the header when nothing fell below.
+#include "framework/body/marker_layout.h"
 #include "framework/config/decode.h"
 #include "framework/core/csv.h"
 #include "framework/core/error.h"
@@ -81,6 +82,7 @@ struct LabelOptions {
   std::string input;
   std::string checkpoint;      // empty: a bundled model
   std::string model = "auto";  // a bundled model's name, or auto
+  std::string name_map;        // "" or their_name: our_name (YAML)
   bool tracklet = false;
   /// Assigned real labels below this probability become null (0 = off).
   double min_confidence = 0.0;
@@ -156,7 +158,11 @@ class LabelTask : public Task {
     if (const ConfigNode* threads = cfg.Find("threads")) {
       SetTorchThreads(static_cast<int>(threads->AsInt()));
     }
-    const C3dData c3d = ReadC3d(options_.input);
+    C3dData c3d = ReadC3d(options_.input);
+    const MarkerNameMap name_map = options_.name_map.empty()
+                                       ? MarkerNameMap{}
+                                       : ReadMarkerNameMap(options_.name_map);
+    c3d.labels = name_map.Apply(c3d.labels);
     if (options_.checkpoint.empty()) {
       CaptureSummary capture = SummarizeCapture(c3d);
       capture.name = options_.input;
@@ -166,6 +172,9 @@ class LabelTask : public Task {
       options_.checkpoint = choice.model.checkpoint.string();
     }
     const CheckpointInfo info = ReadCheckpointInfo(options_.checkpoint);
+    if (!name_map.empty()) {
+      CheckMarkerNameMap(name_map, info.labels, "the labeller");
+    }
     Labeler model = LoadLabelerFromCheckpoint(options_.checkpoint);
     const CalibrationChoice calibration =
         ResolveCalibration(options_.calibration, options_.checkpoint);
@@ -463,6 +472,7 @@ void RegisterLabelTask(Registry<Task>& registry) {
       reader.Require("checkpoint", &options.checkpoint);
     }
     reader.Read("model", &options.model);
+    reader.Read("name_map", &options.name_map);
     reader.Read("tracklet", &options.tracklet);
     ReadConfidenceKeys(node,
                        reader,

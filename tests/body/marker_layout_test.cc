@@ -708,3 +708,74 @@ TEST(BuiltinLayouts, ForefootMarkersMatchRealCapturesOnTheMakeHumanBody) {
 
 }  // namespace
 }  // namespace soma
+
+namespace soma {
+namespace {
+
+TEST(MarkerNameMap, ParsesAndAppliesBeforeTheAliasTable) {
+  const MarkerNameMap map = ParseMarkerNameMap(
+      "LeftKnee: LKNE\nREAS: RASI\n'meinard:Hips_L': LFWT\n", "names.yaml");
+  ASSERT_EQ(map.entries.size(), 3u);
+  EXPECT_EQ(map.Apply("LeftKnee"), "LKNE");
+  EXPECT_EQ(map.Apply("subject:leftknee"), "LKNE");  // prefix, case ignored
+  EXPECT_EQ(map.Apply("REAS"), "RASI");
+  EXPECT_EQ(CanonicalMarkerLabel(map.Apply("REAS")), "RFWT");  // then aliases
+  EXPECT_EQ(map.Apply("HIPS_L"), "LFWT");
+  EXPECT_EQ(map.Apply("C7"), "C7");  // not in the map: unchanged
+  EXPECT_EQ(map.Apply(std::vector<std::string>{"LeftKnee", "X"}),
+            (std::vector<std::string>{"LKNE", "X"}));
+  EXPECT_TRUE(ParseMarkerNameMap("", "empty.yaml").empty());
+  // Checked against the labels it maps onto.
+  const std::vector<std::string> labels = {"LKNE", "RFWT", "LFWT", "C7"};
+  EXPECT_NO_THROW(CheckMarkerNameMap(map, labels, "the layout"));
+}
+
+TEST(MarkerNameMap, BadInputIsAOneLineErrorNamingFileAndKey) {
+  const auto message = [](const std::string& text) -> std::string {
+    try {
+      ParseMarkerNameMap(text, "names.yaml");
+    } catch (const IoError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  const auto expect_error = [&](const std::string& text,
+                                const std::string& part) {
+    const std::string what = message(text);
+    EXPECT_NE(what.find("names.yaml"), std::string::npos) << text;
+    EXPECT_NE(what.find(part), std::string::npos) << what;
+    EXPECT_EQ(what.find('\n'), std::string::npos) << what;
+  };
+  expect_error("LeftKnee: 12\n", "LeftKnee: expected our marker name");
+  expect_error("LeftKnee: [LKNE]\n", "a list");
+  expect_error("LeftKnee:\n", "null");
+  expect_error("LeftKnee: yes\n", "a bool");
+  expect_error("- LKNE\n", "expected one mapping");
+  expect_error("a: [\n", "names.yaml");
+  expect_error("LeftKnee: LKNE\nleftknee: RKNE\n", "the same capture name");
+  EXPECT_THROW(ReadMarkerNameMap(soma::testing::CreateTestDir() / "none.yaml"),
+               IoError);
+  // A target that is not a label, two names onto one label.
+  const std::vector<std::string> labels = {"LKNE", "RFWT"};
+  const auto check_message = [&](const std::string& text) -> std::string {
+    try {
+      CheckMarkerNameMap(
+          ParseMarkerNameMap(text, "names.yaml"), labels, "the layout");
+    } catch (const IoError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  std::string what = check_message("LeftKnee: KNEE_L\n");
+  EXPECT_NE(what.find("names.yaml: LeftKnee: KNEE_L is not a label of the "
+                      "layout (2 labels: LKNE RFWT)"),
+            std::string::npos)
+      << what;
+  what = check_message("REAS: RASI\nHipR: RFWT\n");  // RASI is RFWT
+  EXPECT_NE(what.find("names.yaml: HipR: maps onto RFWT, as REAS does"),
+            std::string::npos)
+      << what;
+}
+
+}  // namespace
+}  // namespace soma
