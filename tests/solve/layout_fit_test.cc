@@ -274,12 +274,12 @@ TEST(CaptureLayout, TooFewRecognisedMarkersIsAClearError) {
 
 TEST(CaptureLayout, NameMapMakesACaptureUnderOtherNamesFittable) {
   // A real capture whose names are ours under other names: Res16bits with
-  // results/layouts/res16bits_name_map.yaml.
+  // results/capture_layouts/res16bits_name_map.yaml.
   const Capture capture = ReadCapture("Res16bits.c3d");
   const BodyModel& body = ProceduralBody();
   const MarkerLayout recognition = MakeBuiltinLayout(body, "superset89");
   const MarkerNameMap map = ReadMarkerNameMap(
-      soma::testing::SourceDir() / "results/layouts/res16bits_name_map.yaml");
+      soma::testing::SourceDir() / "results/capture_layouts/res16bits_name_map.yaml");
   CheckMarkerNameMap(map, recognition.Labels(), "the layout");
   const CaptureLayoutResult r = FitCapture(capture, map.Apply(capture.labels));
   std::printf(

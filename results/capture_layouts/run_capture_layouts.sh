@@ -7,7 +7,7 @@
 # cannot be fitted get a row with the one-line error. Writes
 # capture_layouts.csv beside this script, and each run's layout JSON/CSV under
 # the work dir.
-#   bash results/layouts/run_capture_layouts.sh [soma binary] [work dir]
+#   bash results/capture_layouts/run_capture_layouts.sh [soma binary] [work dir]
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../.." && pwd)
@@ -40,7 +40,7 @@ echo "take,marker_set,name_map,markers,recognised,placed,not_placed,frame,fit_rm
 run_one() {  # take, name map ("" for none), run name
   local take=$1 map=$2 name=$3 run=$work/$3
   local args=("$data/$take.c3d" layout=superset89 hydra.run.dir="$run")
-  [[ -n $map ]] && args+=(task.name_map="results/layouts/$map")
+  [[ -n $map ]] && args+=(task.name_map="results/capture_layouts/$map")
   rm -rf "$run"
   if "$soma" fit_layout "${args[@]}" > "$run.log" 2>&1; then
     echo "$take,$(marker_set "$name"),$map,$(metric "$run" markers),$(metric "$run" recognised),$(metric "$run" placed),$(metric "$run" not_placed),$(metric "$run" frame),$(mm "$run" fit_rms_mm),$(mm "$run" layout_rms_mm),$(mm "$run" fitted_layout_rms_mm)," >> "$out"
