@@ -354,30 +354,6 @@ SOMA_VECTOR_CLONES void BatchNormGradApply(const float* __restrict y,
   }
 }
 
-/// Softmax backward of `n` rows in place: `ds = p * (ds - rowsum(ds * p))
-/// * scale` (`ds` holds dL/dp on entry).
-SOMA_VECTOR_CLONES void SoftmaxBackwardRows(const float* __restrict p,
-                                            int64_t ldp,
-                                            int64_t n,
-                                            float scale,
-                                            float* __restrict ds,
-                                            int64_t lds) {
-  for (int64_t r = 0; r < n; ++r) {
-    const float* pr = p + r * ldp;
-    float* sr = ds + r * lds;
-    // 16 partial sums, so that the reduction vectorises.
-    float part[16] = {};
-    int64_t j = 0;
-    for (; j + 16 <= n; j += 16) {
-      for (int e = 0; e < 16; ++e) part[e] += sr[j + e] * pr[j + e];
-    }
-    float dot = 0.0f;
-    for (; j < n; ++j) dot += sr[j] * pr[j];
-    for (int e = 0; e < 16; ++e) dot += part[e];
-    for (j = 0; j < n; ++j) sr[j] = pr[j] * (sr[j] - dot) * scale;
-  }
-}
-
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -1071,10 +1047,6 @@ void SelfAttentionOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
         0, ctx.batch, kFrameGrain, [&](int64_t begin, int64_t end) {
           HeadScratch scratch;
           scratch.t0.Resize(static_cast<size_t>(dh * np + 16));
-          // The 1/sqrt(dh) score scale as the GEMM's per-row epilogue scale.
-          const std::vector<float> scales(static_cast<size_t>(n), scale);
-          GemmEpilogue scaled;
-          scaled.row_scale = scales.data();
           for (int64_t f = begin; f < end; ++f) {
             for (int64_t head = 0; head < h; ++head) {
               const float* q = L.q.row(f * n) + head * dh;
@@ -1083,17 +1055,9 @@ void SelfAttentionOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
               float* kt = scratch.t0.data();
               internal::Transpose(ctx.isa, k, L.q.ld, n, dh, kt, np);
               float* p = L.probs.row((f * h + head) * n);
-              GemmPacked(ctx.isa,
-                         q,
-                         L.q.ld,
-                         n,
-                         WeightView{kt, 16, np, nullptr, n, dh},
-                         p,
-                         L.probs.ld,
-                         scaled,
-                         0,
-                         NumPanels(n));
-              internal::SoftmaxRows(ctx.isa, p, L.probs.ld, n, n);
+              // Scores, scale and softmax with each row in registers.
+              internal::AttentionProbs(
+                  ctx.isa, q, L.q.ld, kt, np, n, dh, scale, p, L.probs.ld);
               GemmPacked(ctx.isa,
                          p,
                          L.probs.ld,
@@ -1214,20 +1178,11 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
               float* dv = dq + 2 * d;
               float* ds = scratch.t0.data();
               float* vt = scratch.t2.data();
-              // dP = dO v^T.
+              // dP = dO v^T, then dS = P * (dP - rowsum(dP * P)) /
+              // sqrt(dh), each row in registers.
               internal::Transpose(ctx.isa, v, ldq, n, dh, vt, np);
-              GemmPacked(ctx.isa,
-                         dout,
-                         do_.ld,
-                         n,
-                         WeightView{vt, 16, np, nullptr, n, dh},
-                         ds,
-                         np,
-                         {},
-                         0,
-                         NumPanels(n));
-              // dS = P * (dP - rowsum(dP * P)) / sqrt(dh).
-              SoftmaxBackwardRows(p, ldp, n, scale, ds, np);
+              internal::AttentionScoresGrad(
+                  ctx.isa, dout, do_.ld, vt, np, p, ldp, n, dh, scale, ds, np);
               // dV = P^T dO (P read transposed in place).
               internal::GemmPackedStrided(
                   ctx.isa,
