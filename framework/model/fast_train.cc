@@ -201,6 +201,9 @@ void CopyColumns(const float* x,
 // kSumBlock rows and in double across blocks.
 #define SOMA_VECTOR_CLONES __attribute__((target_clones("avx512f", "default")))
 constexpr int64_t kSumBlock = 32;
+// The bias gradient sums dy per dW chunk in the same kSumBlock row blocks as
+// a pass over whole row ranges would (LinearOp::Backward).
+static_assert(kReductionChunk % kSumBlock == 0);
 
 /// `sums[c] += sum_r x[r][c]`; `tmp` holds `cols` floats.
 SOMA_VECTOR_CLONES void ColumnSums(const float* __restrict x,
@@ -486,12 +489,12 @@ void LinearOp::Backward(const Context& ctx,
                         bool accumulate) {
   const int64_t kp = RoundUp16(in_);
   dw_.Resize(static_cast<size_t>(out_ * kp + 16));
-  // The bias gradient.
-  db_ = ParallelColumnReduce(
-      rows, out_, [&](int64_t begin, int64_t end, double* sums, float* tmp) {
-        ColumnSums(dy + begin * ldy, ldy, end - begin, out_, sums, tmp);
-      });
   if (ctx.bf16) {
+    // The bias gradient.
+    db_ = ParallelColumnReduce(
+        rows, out_, [&](int64_t begin, int64_t end, double* sums, float* tmp) {
+          ColumnSums(dy + begin * ldy, ldy, end - begin, out_, sums, tmp);
+        });
     // dW = dy^T x on AMX: x packed once (threads split its rows), then the
     // output rows of dW in blocks of 32.
     internal::PrepareBf16B(rows, in_, &x_b_);
@@ -520,15 +523,21 @@ void LinearOp::Backward(const Context& ctx,
     // dW = dy^T x (dy read transposed in place): each of ReduceChunks(rows)
     // row ranges accumulates its partial dW over blocks of kReductionChunk
     // rows (the block of x stays in L2 while every output tile reads it);
-    // the partials are then added in range order.
+    // the partials are then added in range order. The bias gradient's column
+    // sums of each block of dy follow its GEMM while the block is in cache:
+    // the same ranges and kSumBlock row blocks as ParallelColumnReduce, so
+    // the same sums as a separate pass over dy.
     const int64_t ranges = ReduceChunks(rows);
     const int64_t size = out_ * kp;
     dw_partial_.Resize(static_cast<size_t>(ranges * size + 16));
+    std::vector<double> db_partial(static_cast<size_t>(ranges * out_), 0.0);
     internal::FastParallelFor(0, ranges, 1, [&](int64_t begin, int64_t end) {
+      std::vector<float> tmp(static_cast<size_t>(out_));
       for (int64_t c = begin; c < end; ++c) {
         const int64_t r0 = rows * c / ranges;
         const int64_t r1 = rows * (c + 1) / ranges;
         float* dw = ranges == 1 ? dw_.data() : dw_partial_.data() + c * size;
+        double* db = db_partial.data() + c * out_;
         for (int64_t b0 = r0; b0 < r1; b0 += kReductionChunk) {
           const int64_t bn = std::min(kReductionChunk, r1 - b0);
           GemmEpilogue ep;
@@ -548,9 +557,15 @@ void LinearOp::Backward(const Context& ctx,
               ep,
               0,
               NumPanels(in_));
+          ColumnSums(dy + b0 * ldy, ldy, bn, out_, db, tmp.data());
         }
       }
     });
+    db_.assign(static_cast<size_t>(out_), 0.0);
+    for (int64_t c = 0; c < ranges; ++c) {
+      const double* sums = db_partial.data() + c * out_;
+      for (size_t i = 0; i < db_.size(); ++i) db_[i] += sums[i];
+    }
     if (rows == 0) {
       std::fill(dw_.data(), dw_.data() + size, 0.0f);
     } else if (ranges > 1) {
