@@ -8,11 +8,14 @@
 #include <cstring>
 #include <limits>
 #include <new>
+#include <type_traits>
 
-// GCC 12 reports -Wmaybe-uninitialized inside its own AVX-512 intrinsic
+// GCC 12 reports -Wmaybe-uninitialized (and, for the reductions inlined into
+// the attention tiles, -Wuninitialized) inside its own AVX-512 intrinsic
 // headers (the `_mm512_undefined_*` idiom, GCC bug 105593).
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#pragma GCC diagnostic ignored "-Wuninitialized"
 #include <immintrin.h>  // NOLINT(build/include_order)
 #pragma GCC diagnostic pop
 
@@ -554,6 +557,200 @@ void SinkhornScalingAvx512(const double* kernel,
   }
 }
 
+/// R query rows of one attention head, n <= 16 P keys: the scores
+/// `scale * q k^T` accumulated in registers (k read transposed, `kt[d * ldkt
+/// + j]`), then each row's softmax in registers, stored to `p`.
+template <int R, int P>
+void ProbsTile(const float* q,
+               int64_t ldq,
+               const float* kt,
+               int64_t ldkt,
+               int64_t n,
+               int64_t dh,
+               float scale,
+               float* p,
+               int64_t ldp) {
+  __m512 acc[R][P];
+#pragma GCC unroll 8
+  for (int r = 0; r < R; ++r) {
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c) acc[r][c] = _mm512_setzero_ps();
+  }
+  for (int64_t kk = 0; kk < dh; ++kk) {
+    __m512 wv[P];
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c)
+      wv[c] = _mm512_loadu_ps(kt + kk * ldkt + 16 * c);
+#pragma GCC unroll 8
+    for (int r = 0; r < R; ++r) {
+      const __m512 xb = _mm512_set1_ps(q[r * ldq + kk]);
+#pragma GCC unroll 3
+      for (int c = 0; c < P; ++c) {
+        acc[r][c] = _mm512_fmadd_ps(xb, wv[c], acc[r][c]);
+      }
+    }
+  }
+  __mmask16 mask[P];
+#pragma GCC unroll 3
+  for (int c = 0; c < P; ++c) mask[c] = LaneMask(n - 16 * c);
+  const __m512 vscale = _mm512_set1_ps(scale);
+#pragma GCC unroll 8
+  for (int r = 0; r < R; ++r) {
+    __m512 max = _mm512_set1_ps(-std::numeric_limits<float>::infinity());
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c) {
+      acc[r][c] = _mm512_mul_ps(acc[r][c], vscale);
+      max = _mm512_mask_max_ps(max, mask[c], max, acc[r][c]);
+    }
+    const __m512 row_max = _mm512_set1_ps(_mm512_reduce_max_ps(max));
+    __m512 sum = _mm512_setzero_ps();
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c) {
+      acc[r][c] = Exp512(_mm512_sub_ps(acc[r][c], row_max));
+      sum = _mm512_mask_add_ps(sum, mask[c], sum, acc[r][c]);
+    }
+    const __m512 inv = _mm512_set1_ps(1.0f / _mm512_reduce_add_ps(sum));
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c) {
+      _mm512_mask_storeu_ps(
+          p + r * ldp + 16 * c, mask[c], _mm512_mul_ps(acc[r][c], inv));
+    }
+  }
+}
+
+/// R rows of the softmax backward of one head: `dp = dout v^T` in registers
+/// (v read transposed, `vt[d * ldvt + j]`), then `ds = p * (dp - rowsum(dp *
+/// p)) * scale`, stored to `ds`.
+template <int R, int P>
+void ScoresGradTile(const float* dout,
+                    int64_t ldo,
+                    const float* vt,
+                    int64_t ldvt,
+                    const float* p,
+                    int64_t ldp,
+                    int64_t n,
+                    int64_t dh,
+                    float scale,
+                    float* ds,
+                    int64_t lds) {
+  __m512 acc[R][P];
+#pragma GCC unroll 8
+  for (int r = 0; r < R; ++r) {
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c) acc[r][c] = _mm512_setzero_ps();
+  }
+  for (int64_t kk = 0; kk < dh; ++kk) {
+    __m512 wv[P];
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c)
+      wv[c] = _mm512_loadu_ps(vt + kk * ldvt + 16 * c);
+#pragma GCC unroll 8
+    for (int r = 0; r < R; ++r) {
+      const __m512 xb = _mm512_set1_ps(dout[r * ldo + kk]);
+#pragma GCC unroll 3
+      for (int c = 0; c < P; ++c) {
+        acc[r][c] = _mm512_fmadd_ps(xb, wv[c], acc[r][c]);
+      }
+    }
+  }
+  __mmask16 mask[P];
+#pragma GCC unroll 3
+  for (int c = 0; c < P; ++c) mask[c] = LaneMask(n - 16 * c);
+  const __m512 vscale = _mm512_set1_ps(scale);
+#pragma GCC unroll 8
+  for (int r = 0; r < R; ++r) {
+    __m512 pv[P];
+    __m512 dot = _mm512_setzero_ps();
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c) {
+      pv[c] = _mm512_maskz_loadu_ps(mask[c], p + r * ldp + 16 * c);
+      dot = _mm512_mask3_fmadd_ps(acc[r][c], pv[c], dot, mask[c]);
+    }
+    const __m512 row_dot = _mm512_set1_ps(_mm512_reduce_add_ps(dot));
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c) {
+      const __m512 value = _mm512_mul_ps(
+          _mm512_mul_ps(pv[c], _mm512_sub_ps(acc[r][c], row_dot)), vscale);
+      _mm512_mask_storeu_ps(ds + r * lds + 16 * c, mask[c], value);
+    }
+  }
+}
+
+/// Rows of one head in tiles of 8 (then the remainder), P = NumPanels(n).
+template <int P, typename Tile>
+void ForRowTiles(int64_t n, const Tile& tile) {
+  int64_t r0 = 0;
+  for (; r0 + 8 <= n; r0 += 8) tile(r0, std::integral_constant<int, 8>{});
+  switch (n - r0) {
+    case 7:
+      tile(r0, std::integral_constant<int, 7>{});
+      break;
+    case 6:
+      tile(r0, std::integral_constant<int, 6>{});
+      break;
+    case 5:
+      tile(r0, std::integral_constant<int, 5>{});
+      break;
+    case 4:
+      tile(r0, std::integral_constant<int, 4>{});
+      break;
+    case 3:
+      tile(r0, std::integral_constant<int, 3>{});
+      break;
+    case 2:
+      tile(r0, std::integral_constant<int, 2>{});
+      break;
+    case 1:
+      tile(r0, std::integral_constant<int, 1>{});
+      break;
+    default:
+      break;
+  }
+}
+
+template <int P>
+void AttentionProbsAvx512(const float* q,
+                          int64_t ldq,
+                          const float* kt,
+                          int64_t ldkt,
+                          int64_t n,
+                          int64_t dh,
+                          float scale,
+                          float* p,
+                          int64_t ldp) {
+  ForRowTiles<P>(n, [&](int64_t r0, auto rows) {
+    ProbsTile<decltype(rows)::value, P>(
+        q + r0 * ldq, ldq, kt, ldkt, n, dh, scale, p + r0 * ldp, ldp);
+  });
+}
+
+template <int P>
+void AttentionScoresGradAvx512(const float* dout,
+                               int64_t ldo,
+                               const float* vt,
+                               int64_t ldvt,
+                               const float* p,
+                               int64_t ldp,
+                               int64_t n,
+                               int64_t dh,
+                               float scale,
+                               float* ds,
+                               int64_t lds) {
+  ForRowTiles<P>(n, [&](int64_t r0, auto rows) {
+    ScoresGradTile<decltype(rows)::value, P>(dout + r0 * ldo,
+                                             ldo,
+                                             vt,
+                                             ldvt,
+                                             p + r0 * ldp,
+                                             ldp,
+                                             n,
+                                             dh,
+                                             scale,
+                                             ds + r0 * lds,
+                                             lds);
+  });
+}
+
 #pragma GCC pop_options
 
 }  // namespace
@@ -687,6 +884,92 @@ void ExpInPlace(KernelIsa isa, double* x, int64_t n) {
     ExpAvx512(x, n);
   } else {
     for (int64_t i = 0; i < n; ++i) x[i] = std::exp(x[i]);
+  }
+}
+
+void AttentionProbs(KernelIsa isa,
+                    const float* q,
+                    int64_t ldq,
+                    const float* kt,
+                    int64_t ldkt,
+                    int64_t n,
+                    int64_t dh,
+                    float scale,
+                    float* p,
+                    int64_t ldp) {
+  if (isa == KernelIsa::kAvx512 && n <= kMaxFusedKeys) {
+    switch (NumPanels(n)) {
+      case 1:
+        AttentionProbsAvx512<1>(q, ldq, kt, ldkt, n, dh, scale, p, ldp);
+        return;
+      case 2:
+        AttentionProbsAvx512<2>(q, ldq, kt, ldkt, n, dh, scale, p, ldp);
+        return;
+      default:
+        AttentionProbsAvx512<3>(q, ldq, kt, ldkt, n, dh, scale, p, ldp);
+        return;
+    }
+  }
+  const std::vector<float> scales(static_cast<size_t>(n), scale);
+  GemmEpilogue scaled;
+  scaled.row_scale = scales.data();
+  GemmPacked(isa,
+             q,
+             ldq,
+             n,
+             WeightView{kt, 16, ldkt, nullptr, n, dh},
+             p,
+             ldp,
+             scaled,
+             0,
+             NumPanels(n));
+  SoftmaxRows(isa, p, ldp, n, n);
+}
+
+void AttentionScoresGrad(KernelIsa isa,
+                         const float* dout,
+                         int64_t ldo,
+                         const float* vt,
+                         int64_t ldvt,
+                         const float* p,
+                         int64_t ldp,
+                         int64_t n,
+                         int64_t dh,
+                         float scale,
+                         float* ds,
+                         int64_t lds) {
+  if (isa == KernelIsa::kAvx512 && n <= kMaxFusedKeys) {
+    switch (NumPanels(n)) {
+      case 1:
+        AttentionScoresGradAvx512<1>(
+            dout, ldo, vt, ldvt, p, ldp, n, dh, scale, ds, lds);
+        return;
+      case 2:
+        AttentionScoresGradAvx512<2>(
+            dout, ldo, vt, ldvt, p, ldp, n, dh, scale, ds, lds);
+        return;
+      default:
+        AttentionScoresGradAvx512<3>(
+            dout, ldo, vt, ldvt, p, ldp, n, dh, scale, ds, lds);
+        return;
+    }
+  }
+  GemmPacked(isa,
+             dout,
+             ldo,
+             n,
+             WeightView{vt, 16, ldvt, nullptr, n, dh},
+             ds,
+             lds,
+             {},
+             0,
+             NumPanels(n));
+  for (int64_t r = 0; r < n; ++r) {
+    const float* pr = p + r * ldp;
+    float* sr = ds + r * lds;
+    float dot = 0.0f;
+    for (int64_t j = 0; j < n; ++j) dot += sr[j] * pr[j];
+    for (int64_t j = 0; j < n; ++j) sr[j] = pr[j] * (sr[j] - dot) * scale;
   }
 }
 

@@ -163,6 +163,45 @@ void SoftmaxRows(KernelIsa isa,
 void ExpInPlace(KernelIsa isa, float* x, int64_t n);
 void ExpInPlace(KernelIsa isa, double* x, int64_t n);
 
+/// Keys per head up to which AttentionProbs and AttentionScoresGrad keep a
+/// whole score row in registers (AVX-512); longer rows take the GEMM +
+/// separate softmax path (same results up to rounding).
+inline constexpr int64_t kMaxFusedKeys = 48;
+
+/// One head's attention probabilities on `n` points: `p[r][j] = softmax_j(
+/// scale * sum_d q[r][d] kt[d][j])` for `r, j < n`, with `kt` the keys
+/// transposed (`dh x n`, row stride `ldkt`, each row readable for
+/// RoundUp16(n) floats). Writes the first n entries of each of the n rows of
+/// `p` (row stride `ldp`).
+void AttentionProbs(KernelIsa isa,
+                    const float* q,
+                    int64_t ldq,
+                    const float* kt,
+                    int64_t ldkt,
+                    int64_t n,
+                    int64_t dh,
+                    float scale,
+                    float* p,
+                    int64_t ldp);
+
+/// The scores' gradient of one head from its probabilities `p` (`n x n`):
+/// `dp = dout v^T` with `vt` the values transposed (`dh x n`, row stride
+/// `ldvt`, rows readable for RoundUp16(n) floats), then `ds[r][j] = p[r][j]
+/// (dp[r][j] - sum_j' dp[r][j'] p[r][j']) * scale` (softmax backward with the
+/// score scale), first n entries of n rows of `ds` (row stride `lds`).
+void AttentionScoresGrad(KernelIsa isa,
+                         const float* dout,
+                         int64_t ldo,
+                         const float* vt,
+                         int64_t ldvt,
+                         const float* p,
+                         int64_t ldp,
+                         int64_t n,
+                         int64_t dh,
+                         float scale,
+                         float* ds,
+                         int64_t lds);
+
 /// Scratch of one attention head (reused across calls).
 struct AttentionScratch {
   AlignedFloats keys;      // packed keys, NumPanels(n) * dh * 16

@@ -201,6 +201,9 @@ void CopyColumns(const float* x,
 // kSumBlock rows and in double across blocks.
 #define SOMA_VECTOR_CLONES __attribute__((target_clones("avx512f", "default")))
 constexpr int64_t kSumBlock = 32;
+// The bias gradient sums dy per dW chunk in the same kSumBlock row blocks as
+// a pass over whole row ranges would (LinearOp::Backward).
+static_assert(kReductionChunk % kSumBlock == 0);
 
 /// `sums[c] += sum_r x[r][c]`; `tmp` holds `cols` floats.
 SOMA_VECTOR_CLONES void ColumnSums(const float* __restrict x,
@@ -354,30 +357,6 @@ SOMA_VECTOR_CLONES void BatchNormGradApply(const float* __restrict y,
   }
 }
 
-/// Softmax backward of `n` rows in place: `ds = p * (ds - rowsum(ds * p))
-/// * scale` (`ds` holds dL/dp on entry).
-SOMA_VECTOR_CLONES void SoftmaxBackwardRows(const float* __restrict p,
-                                            int64_t ldp,
-                                            int64_t n,
-                                            float scale,
-                                            float* __restrict ds,
-                                            int64_t lds) {
-  for (int64_t r = 0; r < n; ++r) {
-    const float* pr = p + r * ldp;
-    float* sr = ds + r * lds;
-    // 16 partial sums, so that the reduction vectorises.
-    float part[16] = {};
-    int64_t j = 0;
-    for (; j + 16 <= n; j += 16) {
-      for (int e = 0; e < 16; ++e) part[e] += sr[j + e] * pr[j + e];
-    }
-    float dot = 0.0f;
-    for (; j < n; ++j) dot += sr[j] * pr[j];
-    for (int e = 0; e < 16; ++e) dot += part[e];
-    for (j = 0; j < n; ++j) sr[j] = pr[j] * (sr[j] - dot) * scale;
-  }
-}
-
 }  // namespace
 
 // ---------------------------------------------------------------------------
@@ -510,12 +489,12 @@ void LinearOp::Backward(const Context& ctx,
                         bool accumulate) {
   const int64_t kp = RoundUp16(in_);
   dw_.Resize(static_cast<size_t>(out_ * kp + 16));
-  // The bias gradient.
-  db_ = ParallelColumnReduce(
-      rows, out_, [&](int64_t begin, int64_t end, double* sums, float* tmp) {
-        ColumnSums(dy + begin * ldy, ldy, end - begin, out_, sums, tmp);
-      });
   if (ctx.bf16) {
+    // The bias gradient.
+    db_ = ParallelColumnReduce(
+        rows, out_, [&](int64_t begin, int64_t end, double* sums, float* tmp) {
+          ColumnSums(dy + begin * ldy, ldy, end - begin, out_, sums, tmp);
+        });
     // dW = dy^T x on AMX: x packed once (threads split its rows), then the
     // output rows of dW in blocks of 32.
     internal::PrepareBf16B(rows, in_, &x_b_);
@@ -544,15 +523,21 @@ void LinearOp::Backward(const Context& ctx,
     // dW = dy^T x (dy read transposed in place): each of ReduceChunks(rows)
     // row ranges accumulates its partial dW over blocks of kReductionChunk
     // rows (the block of x stays in L2 while every output tile reads it);
-    // the partials are then added in range order.
+    // the partials are then added in range order. The bias gradient's column
+    // sums of each block of dy follow its GEMM while the block is in cache:
+    // the same ranges and kSumBlock row blocks as ParallelColumnReduce, so
+    // the same sums as a separate pass over dy.
     const int64_t ranges = ReduceChunks(rows);
     const int64_t size = out_ * kp;
     dw_partial_.Resize(static_cast<size_t>(ranges * size + 16));
+    std::vector<double> db_partial(static_cast<size_t>(ranges * out_), 0.0);
     internal::FastParallelFor(0, ranges, 1, [&](int64_t begin, int64_t end) {
+      std::vector<float> tmp(static_cast<size_t>(out_));
       for (int64_t c = begin; c < end; ++c) {
         const int64_t r0 = rows * c / ranges;
         const int64_t r1 = rows * (c + 1) / ranges;
         float* dw = ranges == 1 ? dw_.data() : dw_partial_.data() + c * size;
+        double* db = db_partial.data() + c * out_;
         for (int64_t b0 = r0; b0 < r1; b0 += kReductionChunk) {
           const int64_t bn = std::min(kReductionChunk, r1 - b0);
           GemmEpilogue ep;
@@ -572,9 +557,15 @@ void LinearOp::Backward(const Context& ctx,
               ep,
               0,
               NumPanels(in_));
+          ColumnSums(dy + b0 * ldy, ldy, bn, out_, db, tmp.data());
         }
       }
     });
+    db_.assign(static_cast<size_t>(out_), 0.0);
+    for (int64_t c = 0; c < ranges; ++c) {
+      const double* sums = db_partial.data() + c * out_;
+      for (size_t i = 0; i < db_.size(); ++i) db_[i] += sums[i];
+    }
     if (rows == 0) {
       std::fill(dw_.data(), dw_.data() + size, 0.0f);
     } else if (ranges > 1) {
@@ -1071,10 +1062,6 @@ void SelfAttentionOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
         0, ctx.batch, kFrameGrain, [&](int64_t begin, int64_t end) {
           HeadScratch scratch;
           scratch.t0.Resize(static_cast<size_t>(dh * np + 16));
-          // The 1/sqrt(dh) score scale as the GEMM's per-row epilogue scale.
-          const std::vector<float> scales(static_cast<size_t>(n), scale);
-          GemmEpilogue scaled;
-          scaled.row_scale = scales.data();
           for (int64_t f = begin; f < end; ++f) {
             for (int64_t head = 0; head < h; ++head) {
               const float* q = L.q.row(f * n) + head * dh;
@@ -1083,17 +1070,9 @@ void SelfAttentionOp::Forward(const Context& ctx, const Mat& x, Mat& y) {
               float* kt = scratch.t0.data();
               internal::Transpose(ctx.isa, k, L.q.ld, n, dh, kt, np);
               float* p = L.probs.row((f * h + head) * n);
-              GemmPacked(ctx.isa,
-                         q,
-                         L.q.ld,
-                         n,
-                         WeightView{kt, 16, np, nullptr, n, dh},
-                         p,
-                         L.probs.ld,
-                         scaled,
-                         0,
-                         NumPanels(n));
-              internal::SoftmaxRows(ctx.isa, p, L.probs.ld, n, n);
+              // Scores, scale and softmax with each row in registers.
+              internal::AttentionProbs(
+                  ctx.isa, q, L.q.ld, kt, np, n, dh, scale, p, L.probs.ld);
               GemmPacked(ctx.isa,
                          p,
                          L.probs.ld,
@@ -1214,20 +1193,11 @@ void SelfAttentionOp::Backward(const Context& ctx, Mat& dy, Mat& dx) {
               float* dv = dq + 2 * d;
               float* ds = scratch.t0.data();
               float* vt = scratch.t2.data();
-              // dP = dO v^T.
+              // dP = dO v^T, then dS = P * (dP - rowsum(dP * P)) /
+              // sqrt(dh), each row in registers.
               internal::Transpose(ctx.isa, v, ldq, n, dh, vt, np);
-              GemmPacked(ctx.isa,
-                         dout,
-                         do_.ld,
-                         n,
-                         WeightView{vt, 16, np, nullptr, n, dh},
-                         ds,
-                         np,
-                         {},
-                         0,
-                         NumPanels(n));
-              // dS = P * (dP - rowsum(dP * P)) / sqrt(dh).
-              SoftmaxBackwardRows(p, ldp, n, scale, ds, np);
+              internal::AttentionScoresGrad(
+                  ctx.isa, dout, do_.ld, vt, np, p, ldp, n, dh, scale, ds, np);
               // dV = P^T dO (P read transposed in place).
               internal::GemmPackedStrided(
                   ctx.isa,

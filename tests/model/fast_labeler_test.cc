@@ -10,6 +10,7 @@
 #include <torch/torch.h>
 
 #include <cmath>
+#include <limits>
 #include <vector>
 
 namespace soma {
@@ -262,6 +263,72 @@ TEST(FastKernels, SoftmaxAndAttentionHead) {
     const torch::Tensor s_expected = torch::softmax(s.narrow(1, 0, 37), 1);
     internal::SoftmaxRows(isa, s.data_ptr<float>(), 40, 3, 37);
     EXPECT_TRUE(torch::allclose(s.narrow(1, 0, 37), s_expected, 1e-5, 1e-6));
+  }
+}
+
+TEST(FastKernels, AttentionProbsAndScoresGradMatchReference) {
+  // Row lengths below, at and above one 16-lane vector, the paper's 44, the
+  // fused path's limit (48) and one past it (the GEMM + softmax path).
+  torch::manual_seed(21);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (KernelIsa isa : Isas()) {
+    for (const int64_t n : {5, 16, 19, 44, 48, 53}) {
+      SCOPED_TRACE("n=" + std::to_string(n));
+      const int64_t dh = 25, ld = internal::RoundUp16(n) + 3;
+      const float scale = 0.2f;
+      const torch::Tensor q = torch::randn({n, dh});
+      const torch::Tensor k = torch::randn({n, dh}) * 2;
+      const torch::Tensor v = torch::randn({n, dh});
+      const torch::Tensor dout = torch::randn({n, dh});
+      // Transposed keys and values; the padding lanes past n hold NaN (they
+      // are read but must not reach a result).
+      torch::Tensor kt = torch::full({dh, ld}, nan);
+      kt.narrow(1, 0, n).copy_(k.t());
+      torch::Tensor vt = torch::full({dh, ld}, nan);
+      vt.narrow(1, 0, n).copy_(v.t());
+      torch::Tensor p = torch::full({n, ld}, 7.0f);
+      internal::AttentionProbs(isa,
+                               q.data_ptr<float>(),
+                               dh,
+                               kt.data_ptr<float>(),
+                               ld,
+                               n,
+                               dh,
+                               scale,
+                               p.data_ptr<float>(),
+                               ld);
+      const torch::Tensor qd = q.to(torch::kDouble);
+      const torch::Tensor expected_p =
+          torch::softmax(qd.matmul(k.to(torch::kDouble).t()) * scale, 1);
+      EXPECT_TRUE(torch::allclose(
+          p.narrow(1, 0, n).to(torch::kDouble), expected_p, 1e-5, 1e-6));
+      EXPECT_TRUE(p.narrow(1, n, ld - n).eq(7.0f).all().item<bool>());
+      torch::Tensor ds = torch::full({n, ld}, 7.0f);
+      internal::AttentionScoresGrad(isa,
+                                    dout.data_ptr<float>(),
+                                    dh,
+                                    vt.data_ptr<float>(),
+                                    ld,
+                                    p.data_ptr<float>(),
+                                    ld,
+                                    n,
+                                    dh,
+                                    scale,
+                                    ds.data_ptr<float>(),
+                                    ld);
+      const torch::Tensor pd = p.narrow(1, 0, n).to(torch::kDouble);
+      const torch::Tensor dp =
+          dout.to(torch::kDouble).matmul(v.to(torch::kDouble).t());
+      const torch::Tensor expected_ds =
+          pd * (dp - (dp * pd).sum(1, true)) * scale;
+      EXPECT_TRUE(torch::allclose(
+          ds.narrow(1, 0, n).to(torch::kDouble), expected_ds, 1e-5, 1e-5))
+          << (ds.narrow(1, 0, n).to(torch::kDouble) - expected_ds)
+                 .abs()
+                 .max()
+                 .item<double>();
+      EXPECT_TRUE(ds.narrow(1, n, ld - n).eq(7.0f).all().item<bool>());
+    }
   }
 }
 
