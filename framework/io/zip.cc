@@ -218,6 +218,7 @@ ZipWriter::ZipWriter(std::ostream& out, ZipWriteOptions options)
   zip_source_keep(impl_->buffer);  // read it back after zip_close
   impl_->archive = zip_open_from_source(impl_->buffer, ZIP_TRUNCATE, &error);
   if (impl_->archive == nullptr) {
+    zip_source_free(impl_->buffer);  // the failed open's reference
     throw IoError(fmt::format("cannot create an in-memory zip archive: {}",
                               TakeMessage(&error)));
   }
