@@ -11,6 +11,8 @@ PACKAGES=(
   libtorch-dev libeigen3-dev libyaml-cpp-dev libceres-dev libhdf5-dev
   libfmt-dev libgtest-dev libgmock-dev libbenchmark-dev
   libopenblas-dev libopenblas0-openmp zlib1g-dev
+  # JSON (core/json), .npz archives (io/zip), PNG images (core/image).
+  nlohmann-json3-dev libzip-dev libpng-dev
   python3 python3-h5py python3-numpy
   python3-nbconvert python3-nbformat python3-ipykernel python3-pandas python3-matplotlib
   # The browser test of `soma view` (tests/view/browser_test.py): headless.

@@ -1,8 +1,8 @@
 #include "framework/body/makehuman_body.h"
 
-#include "framework/body/json.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
+#include "framework/core/json.h"
 #include "framework/io/npz.h"
 
 #include <Eigen/Cholesky>
@@ -76,14 +76,10 @@ auto WithFile(const std::filesystem::path& path, F&& f) -> decltype(f()) {
   }
 }
 
-JsonValue ReadJsonFile(const std::filesystem::path& path) {
-  return ParseJson(ReadFile(path), path.string());
-}
-
-const JsonValue& Member(const JsonValue& object,
-                        std::string_view key,
-                        std::string_view where) {
-  const JsonValue* value = object.Find(key);
+const Json& Member(const Json& object,
+                   std::string_view key,
+                   std::string_view where) {
+  const Json* value = JsonFind(object, key);
   if (value == nullptr)
     throw IoError(fmt::format("{}: missing '{}'", where, key));
   return *value;
@@ -197,18 +193,18 @@ ObjMesh ReadObj(const std::filesystem::path& path, double scale) {
 std::map<std::string, std::vector<int>> ReadVertexGroups(
     const std::filesystem::path& path, int num_vertices) {
   return WithFile(path, [&] {
-    const JsonValue root = ReadJsonFile(path);
+    const Json root = ReadJsonFile(path);
     std::map<std::string, std::vector<int>> groups;
-    for (const auto& [name, ranges] : root.AsObject()) {
+    for (const auto& [name, ranges] : JsonObject(root)) {
       std::vector<int>& indices = groups[name];
-      for (const JsonValue& range : ranges.AsArray()) {
-        const JsonValue::Array& pair = range.AsArray();
+      for (const Json& range : JsonArray(ranges)) {
+        const Json::array_t& pair = JsonArray(range);
         if (pair.size() != 2) {
           throw IoError(fmt::format(
               "group '{}': ranges must be [first, last] pairs", name));
         }
-        const int64_t first = pair[0].AsInt();
-        const int64_t last = pair[1].AsInt();
+        const int64_t first = JsonInt(pair[0]);
+        const int64_t last = JsonInt(pair[1]);
         if (first < 0 || last < first || last >= num_vertices) {
           throw IoError(fmt::format(
               "group '{}': range [{}, {}] outside the {} mesh vertices",
@@ -393,12 +389,12 @@ Eigen::Vector3d Evaluate(const PointDef& def,
   return sum / static_cast<double>(def.indices.size());
 }
 
-PointDef ParsePointDef(const JsonValue& json,
+PointDef ParsePointDef(const Json& json,
                        const std::map<std::string, std::vector<int>>& groups,
                        int num_vertices,
                        const std::string& where) {
   PointDef def;
-  const std::string& strategy = Member(json, "strategy", where).AsString();
+  const std::string& strategy = JsonString(Member(json, "strategy", where));
   const auto check = [&](int64_t index) {
     if (index < 0 || index >= num_vertices) {
       throw IoError(fmt::format("{}: vertex {} outside the {} mesh vertices",
@@ -409,7 +405,7 @@ PointDef ParsePointDef(const JsonValue& json,
     return static_cast<int>(index);
   };
   if (strategy == "CUBE") {
-    const std::string& cube = Member(json, "cube_name", where).AsString();
+    const std::string& cube = JsonString(Member(json, "cube_name", where));
     const auto it = groups.find(cube);
     if (it == groups.end() || it->second.empty()) {
       throw IoError(fmt::format(
@@ -419,11 +415,10 @@ PointDef ParsePointDef(const JsonValue& json,
     }
     def.indices = it->second;
   } else if (strategy == "VERTEX") {
-    def.indices = {check(Member(json, "vertex_index", where).AsInt())};
+    def.indices = {check(JsonInt(Member(json, "vertex_index", where)))};
   } else if (strategy == "MEAN" || strategy == "XYZ") {
-    for (const JsonValue& index :
-         Member(json, "vertex_indices", where).AsArray()) {
-      def.indices.push_back(check(index.AsInt()));
+    for (const Json& index : JsonArray(Member(json, "vertex_indices", where))) {
+      def.indices.push_back(check(JsonInt(index)));
     }
     def.per_axis = strategy == "XYZ";
     if (def.indices.empty() || (def.per_axis && def.indices.size() != 3)) {
@@ -447,14 +442,14 @@ std::vector<RigBone> ReadRig(
     const std::map<std::string, std::vector<int>>& groups,
     int num_vertices) {
   return WithFile(path, [&] {
-    const JsonValue root = ReadJsonFile(path);
+    const Json root = ReadJsonFile(path);
     std::vector<RigBone> unsorted;
-    for (const auto& [name, bone] : root.AsObject()) {
+    for (const auto& [name, bone] : JsonObject(root)) {
       const std::string where = fmt::format("bone '{}'", name);
       RigBone b;
       b.name = name;
-      b.parent_name = Member(bone, "parent", where).AsString();
-      b.roll = Member(bone, "roll", where).AsNumber();
+      b.parent_name = JsonString(Member(bone, "parent", where));
+      b.roll = JsonNumber(Member(bone, "roll", where));
       b.head = ParsePointDef(
           Member(bone, "head", where), groups, num_vertices, where + " head");
       b.tail = ParsePointDef(
@@ -491,19 +486,19 @@ std::vector<RigBone> ReadRig(
 std::map<std::string, std::vector<std::pair<int, double>>> ReadWeights(
     const std::filesystem::path& path, int num_vertices) {
   return WithFile(path, [&] {
-    const JsonValue root = ReadJsonFile(path);
+    const Json root = ReadJsonFile(path);
     std::map<std::string, std::vector<std::pair<int, double>>> weights;
     for (const auto& [bone, list] :
-         Member(root, "weights", "the file").AsObject()) {
+         JsonObject(Member(root, "weights", "the file"))) {
       auto& out = weights[bone];
-      for (const JsonValue& entry : list.AsArray()) {
-        const JsonValue::Array& pair = entry.AsArray();
+      for (const Json& entry : JsonArray(list)) {
+        const Json::array_t& pair = JsonArray(entry);
         if (pair.size() != 2) {
           throw IoError(
               fmt::format("bone '{}': entries must be [vertex, weight]", bone));
         }
-        const int64_t vertex = pair[0].AsInt();
-        const double weight = pair[1].AsNumber();
+        const int64_t vertex = JsonInt(pair[0]);
+        const double weight = JsonNumber(pair[1]);
         if (vertex < 0 || vertex >= num_vertices || !(weight >= 0.0) ||
             !std::isfinite(weight)) {
           throw IoError(fmt::format(
@@ -524,19 +519,19 @@ std::map<std::string, std::vector<std::pair<int, double>>> ReadWeights(
 std::map<std::string, Eigen::Vector3d> ReadPose(
     const std::filesystem::path& path) {
   return WithFile(path, [&] {
-    const JsonValue root = ReadJsonFile(path);
+    const Json root = ReadJsonFile(path);
     std::map<std::string, Eigen::Vector3d> rotations;
     for (const auto& [bone, angles] :
-         Member(root, "bone_rotations", "the file").AsObject()) {
-      const JsonValue::Array& xyz = angles.AsArray();
+         JsonObject(Member(root, "bone_rotations", "the file"))) {
+      const Json::array_t& xyz = JsonArray(angles);
       if (xyz.size() != 3) {
         throw IoError(
             fmt::format("bone '{}': rotation must be 3 Euler angles", bone));
       }
       rotations[bone] = Eigen::Vector3d(
-          xyz[0].AsNumber(), xyz[1].AsNumber(), xyz[2].AsNumber());
+          JsonNumber(xyz[0]), JsonNumber(xyz[1]), JsonNumber(xyz[2]));
     }
-    if (const JsonValue* translations = root.Find("bone_translations");
+    if (const Json* translations = JsonFind(root, "bone_translations");
         translations != nullptr && translations->size() > 0) {
       throw IoError("bone_translations are not supported");
     }

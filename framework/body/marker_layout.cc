@@ -1,9 +1,9 @@
 #include "framework/body/marker_layout.h"
 
-#include "framework/body/json.h"
 #include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
 #include "framework/core/file.h"
+#include "framework/core/json.h"
 
 #include <fmt/format.h>
 
@@ -363,11 +363,11 @@ const std::map<std::string, std::string, std::less<>>& AliasMap() {
   throw IoError(fmt::format("{}: {}: {}", source, path, message));
 }
 
-void RejectUnknownKeys(const JsonValue& object,
+void RejectUnknownKeys(const Json& object,
                        std::initializer_list<std::string_view> known,
                        std::string_view source,
                        std::string_view path) {
-  for (const auto& [key, value] : object.AsObject()) {
+  for (const auto& [key, value] : JsonObject(object)) {
     if (std::find(known.begin(), known.end(), key) == known.end()) {
       std::string expected;
       for (const auto k : known)
@@ -380,20 +380,20 @@ void RejectUnknownKeys(const JsonValue& object,
   }
 }
 
-int ParseVertexId(const JsonValue& value,
+int ParseVertexId(const Json& value,
                   std::string_view source,
                   const std::string& path) {
-  if (!value.is_integer() || value.AsNumber() < 0 ||
-      value.AsNumber() > static_cast<double>(std::numeric_limits<int>::max())) {
-    std::string shown = value.is_number()
-                            ? fmt::format("{}", value.AsNumber())
-                            : std::string(JsonTypeName(value.type()));
+  if (!JsonIsInteger(value) || JsonNumber(value) < 0 ||
+      JsonNumber(value) >
+          static_cast<double>(std::numeric_limits<int>::max())) {
+    std::string shown = value.is_number() ? fmt::format("{}", JsonNumber(value))
+                                          : std::string(JsonTypeName(value));
     LayoutError(
         source,
         path,
         fmt::format("vertex id must be a non-negative integer, got {}", shown));
   }
-  return static_cast<int>(value.AsInt());
+  return static_cast<int>(JsonInt(value));
 }
 
 // ---------------------------------------------------------------------------
@@ -594,53 +594,50 @@ int MarkerLayout::FindLabel(std::string_view label) const {
 
 MarkerLayout ParseMarkerLayout(std::string_view json_text,
                                std::string_view source_name) {
-  const JsonValue root = ParseJson(json_text, source_name);
+  const Json root = ParseJson(json_text, source_name);
   if (!root.is_object()) {
-    LayoutError(
-        source_name,
-        "<root>",
-        fmt::format("expected an object, got {}", JsonTypeName(root.type())));
+    LayoutError(source_name,
+                "<root>",
+                fmt::format("expected an object, got {}", JsonTypeName(root)));
   }
   RejectUnknownKeys(
       root, {"markersets", "surface_model_type"}, source_name, "<root>");
   MarkerLayout layout;
-  if (const JsonValue* type = root.Find("surface_model_type")) {
+  if (const Json* type = JsonFind(root, "surface_model_type")) {
     if (!type->is_string()) {
       LayoutError(
           source_name,
           "surface_model_type",
-          fmt::format("expected a string, got {}", JsonTypeName(type->type())));
+          fmt::format("expected a string, got {}", JsonTypeName(*type)));
     }
-    layout.surface_model_type = type->AsString();
+    layout.surface_model_type = JsonString(*type);
   }
-  const JsonValue* sets = root.Find("markersets");
+  const Json* sets = JsonFind(root, "markersets");
   if (sets == nullptr)
     LayoutError(source_name, "<root>", "missing key \"markersets\"");
   if (!sets->is_array()) {
-    LayoutError(
-        source_name,
-        "markersets",
-        fmt::format("expected an array, got {}", JsonTypeName(sets->type())));
+    LayoutError(source_name,
+                "markersets",
+                fmt::format("expected an array, got {}", JsonTypeName(*sets)));
   }
   std::set<std::string> types;
   std::set<std::string> labels;
-  for (size_t s = 0; s < sets->AsArray().size(); ++s) {
-    const JsonValue& set = sets->AsArray()[s];
+  for (size_t s = 0; s < JsonArray(*sets).size(); ++s) {
+    const Json& set = JsonArray(*sets)[s];
     const std::string path = fmt::format("markersets[{}]", s);
     if (!set.is_object()) {
-      LayoutError(
-          source_name,
-          path,
-          fmt::format("expected an object, got {}", JsonTypeName(set.type())));
+      LayoutError(source_name,
+                  path,
+                  fmt::format("expected an object, got {}", JsonTypeName(set)));
     }
     RejectUnknownKeys(
         set, {"distance_from_skin", "indices", "type"}, source_name, path);
     std::string type = "body";
-    if (const JsonValue* t = set.Find("type")) {
-      if (!t->is_string() || t->AsString().empty()) {
+    if (const Json* t = JsonFind(set, "type")) {
+      if (!t->is_string() || JsonString(*t).empty()) {
         LayoutError(source_name, path + ".type", "expected a non-empty string");
       }
-      type = t->AsString();
+      type = JsonString(*t);
     }
     if (!types.insert(type).second) {
       LayoutError(
@@ -650,25 +647,25 @@ MarkerLayout ParseMarkerLayout(std::string_view json_text,
                       type));
     }
     double distance = kDefaultDistanceFromSkin;
-    if (const JsonValue* d = set.Find("distance_from_skin")) {
-      if (!d->is_number() || !std::isfinite(d->AsNumber()) ||
-          d->AsNumber() < 0.0) {
+    if (const Json* d = JsonFind(set, "distance_from_skin")) {
+      if (!d->is_number() || !std::isfinite(JsonNumber(*d)) ||
+          JsonNumber(*d) < 0.0) {
         LayoutError(source_name,
                     path + ".distance_from_skin",
                     "expected a finite non-negative number (metres)");
       }
-      distance = d->AsNumber();
+      distance = JsonNumber(*d);
     }
-    const JsonValue* indices = set.Find("indices");
+    const Json* indices = JsonFind(set, "indices");
     if (indices == nullptr)
       LayoutError(source_name, path, "missing key \"indices\"");
     if (!indices->is_object()) {
-      LayoutError(source_name,
-                  path + ".indices",
-                  fmt::format("expected an object, got {}",
-                              JsonTypeName(indices->type())));
+      LayoutError(
+          source_name,
+          path + ".indices",
+          fmt::format("expected an object, got {}", JsonTypeName(*indices)));
     }
-    for (const auto& [label, value] : indices->AsObject()) {
+    for (const auto& [label, value] : JsonObject(*indices)) {
       const std::string label_path = fmt::format("{}.indices.{}", path, label);
       if (label.empty())
         LayoutError(source_name, label_path, "empty marker label");
@@ -683,10 +680,10 @@ MarkerLayout ParseMarkerLayout(std::string_view json_text,
       marker.type = type;
       marker.distance_from_skin = distance;
       if (value.is_array()) {
-        if (value.AsArray().empty())
+        if (JsonArray(value).empty())
           LayoutError(source_name, label_path, "empty vertex id list");
-        for (size_t k = 0; k < value.AsArray().size(); ++k) {
-          const int vid = ParseVertexId(value.AsArray()[k],
+        for (size_t k = 0; k < JsonArray(value).size(); ++k) {
+          const int vid = ParseVertexId(JsonArray(value)[k],
                                         source_name,
                                         fmt::format("{}[{}]", label_path, k));
           if (std::find(marker.vertex_ids.begin(),
@@ -711,7 +708,7 @@ MarkerLayout ReadMarkerLayout(const std::filesystem::path& path) {
 }
 
 std::string MarkerLayoutToJson(const MarkerLayout& layout) {
-  std::map<std::string, std::pair<double, JsonValue>>
+  std::map<std::string, std::pair<double, Json>>
       sets;  // type -> (distance, indices)
   for (const MarkerLayout::Marker& m : layout.markers) {
     if (m.vertex_ids.empty()) {
@@ -721,8 +718,7 @@ std::string MarkerLayoutToJson(const MarkerLayout& layout) {
     auto it = sets.find(m.type);
     if (it == sets.end()) {
       it = sets.emplace(m.type,
-                        std::make_pair(m.distance_from_skin,
-                                       JsonValue::MakeObject()))
+                        std::make_pair(m.distance_from_skin, Json::object()))
                .first;
     } else if (it->second.first != m.distance_from_skin) {
       throw IoError(
@@ -733,24 +729,24 @@ std::string MarkerLayoutToJson(const MarkerLayout& layout) {
                       m.distance_from_skin));
     }
     if (m.vertex_ids.size() == 1) {
-      it->second.second.Set(m.label, JsonValue(m.vertex_ids[0]));
+      it->second.second[m.label] = m.vertex_ids[0];
     } else {
-      JsonValue ids = JsonValue::MakeArray();
-      for (const int vid : m.vertex_ids) ids.Append(JsonValue(vid));
-      it->second.second.Set(m.label, std::move(ids));
+      Json ids = Json::array();
+      for (const int vid : m.vertex_ids) ids.push_back(vid);
+      it->second.second[m.label] = std::move(ids);
     }
   }
-  JsonValue root = JsonValue::MakeObject();
-  root.Set("surface_model_type", JsonValue(layout.surface_model_type));
-  JsonValue array = JsonValue::MakeArray();
+  Json root = Json::object();
+  root["surface_model_type"] = layout.surface_model_type;
+  Json array = Json::array();
   for (auto& [type, entry] : sets) {
-    JsonValue set = JsonValue::MakeObject();
-    set.Set("distance_from_skin", JsonValue(entry.first));
-    set.Set("indices", std::move(entry.second));
-    set.Set("type", JsonValue(type));
-    array.Append(std::move(set));
+    Json set = Json::object();
+    set["distance_from_skin"] = entry.first;
+    set["indices"] = std::move(entry.second);
+    set["type"] = type;
+    array.push_back(std::move(set));
   }
-  root.Set("markersets", std::move(array));
+  root["markersets"] = std::move(array);
   return WriteJson(root, 2) + "\n";
 }
 

@@ -7,7 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
-#include <zlib.h>
+#include <png.h>
 
 namespace soma {
 namespace {
@@ -111,25 +111,6 @@ constexpr uint8_t kFont[95][7] = {
     {0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00},  // '}'
     {0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00},  // '~'
 };
-
-void AppendU32(std::vector<uint8_t>& out, uint32_t v) {
-  out.push_back(static_cast<uint8_t>(v >> 24));
-  out.push_back(static_cast<uint8_t>(v >> 16));
-  out.push_back(static_cast<uint8_t>(v >> 8));
-  out.push_back(static_cast<uint8_t>(v));
-}
-
-void AppendChunk(std::vector<uint8_t>& out,
-                 const char type[4],
-                 const std::vector<uint8_t>& data) {
-  AppendU32(out, static_cast<uint32_t>(data.size()));
-  const size_t start = out.size();
-  out.insert(out.end(), type, type + 4);
-  out.insert(out.end(), data.begin(), data.end());
-  const uLong crc =
-      crc32(0L, out.data() + start, static_cast<uInt>(out.size() - start));
-  AppendU32(out, static_cast<uint32_t>(crc));
-}
 
 }  // namespace
 
@@ -248,32 +229,31 @@ void Image::DrawText(
 }
 
 std::vector<uint8_t> Image::EncodePng() const {
-  std::vector<uint8_t> raw;
-  raw.reserve(static_cast<size_t>(height_) * (width_ * 3 + 1));
-  for (int y = 0; y < height_; ++y) {
-    raw.push_back(0);  // filter: none
-    const auto row = pixels_.begin() + static_cast<size_t>(y) * width_ * 3;
-    raw.insert(raw.end(), row, row + static_cast<size_t>(width_) * 3);
+  // libpng's simplified API: 8-bit RGB, libpng's default compression and
+  // row filters. The first call sizes the output, the second fills it.
+  png_image image{};
+  image.version = PNG_IMAGE_VERSION;
+  image.width = static_cast<png_uint_32>(width_);
+  image.height = static_cast<png_uint_32>(height_);
+  image.format = PNG_FORMAT_RGB;
+  png_alloc_size_t size = 0;
+  std::vector<uint8_t> png;
+  for (int pass = 0; pass < 2; ++pass) {
+    if (!png_image_write_to_memory(&image,
+                                   pass == 0 ? nullptr : png.data(),
+                                   &size,
+                                   /*convert_to_8_bit=*/0,
+                                   pixels_.data(),
+                                   /*row_stride=*/0,
+                                   /*colormap=*/nullptr)) {
+      const std::string message = image.message;
+      png_image_free(&image);
+      throw IoError(fmt::format(
+          "libpng cannot encode a {}x{} image: {}", width_, height_, message));
+    }
+    if (pass == 0) png.resize(size);
   }
-  uLongf compressed_size = compressBound(static_cast<uLong>(raw.size()));
-  std::vector<uint8_t> compressed(compressed_size);
-  if (compress2(compressed.data(),
-                &compressed_size,
-                raw.data(),
-                static_cast<uLong>(raw.size()),
-                6) != Z_OK) {
-    throw InternalError("zlib compress2 failed while encoding a PNG");
-  }
-  compressed.resize(compressed_size);
-
-  std::vector<uint8_t> png = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
-  std::vector<uint8_t> header;
-  AppendU32(header, static_cast<uint32_t>(width_));
-  AppendU32(header, static_cast<uint32_t>(height_));
-  header.insert(header.end(), {8, 2, 0, 0, 0});  // 8-bit RGB, no interlace
-  AppendChunk(png, "IHDR", header);
-  AppendChunk(png, "IDAT", compressed);
-  AppendChunk(png, "IEND", {});
+  png.resize(size);
   return png;
 }
 

@@ -2,7 +2,7 @@
 // pictures a person would rather look at than read: rendered frames with
 // labelled markers, coverage histograms, training curves. No GUI library:
 // lines, discs, rectangles and a built-in 5x7 pixel font (ASCII; lower case
-// is drawn as upper case).
+// is drawn as upper case). PNG encoding is libpng's (Debian libpng-dev).
 #pragma once
 
 #include <cstdint>
@@ -51,9 +51,11 @@ class Image {
   /// Width in pixels of `text` at `scale`.
   static int TextWidth(std::string_view text, int scale = 1);
 
-  /// Encodes the image as PNG (8-bit RGB, zlib-compressed).
+  /// Encodes the image as PNG (8-bit RGB) with libpng; throws IoError if
+  /// libpng fails.
   std::vector<uint8_t> EncodePng() const;
-  /// Writes the PNG atomically; throws IoError.
+  /// Writes the PNG atomically (temp file + rename, WriteFileAtomic);
+  /// throws IoError naming the path.
   void WritePng(const std::filesystem::path& path) const;
 
  private:

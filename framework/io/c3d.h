@@ -17,6 +17,9 @@
 //
 // Invalid points (residual word < 0, or non-finite coordinates in float files)
 // have `valid == false`, `residual == -1` and NaN coordinates.
+//
+// Hand-written because Debian 12 packages no C3D library (ezc3d and BTK are
+// not in it); the parser is fuzzed (tests/fuzz/c3d_fuzzer.cc).
 #pragma once
 
 #include "framework/io/marker_labels.h"

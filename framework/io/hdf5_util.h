@@ -2,6 +2,8 @@
 // (io/mocap_dataset.cc, synth/noise_bank.cc): the process-wide HDF5 lock, an
 // RAII owner of HDF5 identifiers, error checks that throw IoError, and
 // scalar / string / string-array attribute readers and writers.
+// Hand-written on libhdf5's C API because Debian 12 packages no C++ wrapper
+// for it (HighFive, h5cpp are not in it).
 //
 // Internal to modules that link HDF5::HDF5 (this header includes <hdf5.h>);
 // not part of the public API and not re-exported by soma_io's headers.

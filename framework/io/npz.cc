@@ -70,7 +70,7 @@ std::map<std::string, NpyArray> ReadNpz(const std::filesystem::path& path) {
 }
 
 // ---------------------------------------------------------------------------
-// .npz writing..npz writing.
+// .npz writing.
 
 void WriteNpz(const std::filesystem::path& path,
               const std::map<std::string, NpyArray>& arrays,
@@ -78,17 +78,23 @@ void WriteNpz(const std::filesystem::path& path,
   AtomicFileWriter writer(path,
                           std::ios::out | std::ios::binary | std::ios::trunc);
   std::ostream& out = writer.stream();
-  ZipWriter zip(out,
-                ZipWriteOptions{.deflate = options.compress,
-                                .force_zip64 = options.force_zip64});
+  ZipWriter zip(out, ZipWriteOptions{.deflate = options.compress});
   for (const auto& [key, array] : arrays) {
     if (key.empty() || key.size() > 60000) {
       throw IoError(
           fmt::format("{}: invalid array key '{}'", path.string(), key));
     }
-    zip.Add(key + ".npy", SerializeNpy(array));
+    try {
+      zip.Add(key + ".npy", SerializeNpy(array));
+    } catch (const IoError& e) {
+      throw IoError(fmt::format("{}: {}", path.string(), e.what()));
+    }
   }
-  zip.Finish();
+  try {
+    zip.Finish();
+  } catch (const IoError& e) {
+    throw IoError(fmt::format("{}: {}", path.string(), e.what()));
+  }
   if (!out) throw IoError(fmt::format("{}: write failed", path.string()));
   writer.Commit();
 }

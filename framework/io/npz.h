@@ -1,15 +1,13 @@
-// NumPy .npz reader and writer over the zip container (zip.h) and the .npy
-// format (npy.h).
+// NumPy .npz reader and writer: the zip container is libzip's (zip.h), the
+// .npy members are parsed here (npy.h).
 //
-// .npz (numpy.savez / savez_compressed): a zip archive (PKWARE APPNOTE 6.3)
-// whose members `<key>.npy` are .npy files, stored (method 0) or deflated
-// (method 8). numpy writes every member with ZIP64 extra fields
-// (force_zip64=True); both the local headers and the central directory may
-// carry them, and the end-of-central-directory record may be the ZIP64 one.
-// Members are located through the central directory (so data descriptors,
-// flag bit 3, are handled), their CRC-32 is checked, and members whose name
-// does not end in ".npy" are skipped. Encrypted members and compression
-// methods other than stored/deflate are unsupported (IoError).
+// .npz (numpy.savez / savez_compressed): a zip archive whose members
+// `<key>.npy` are .npy files, stored (method 0) or deflated (method 8).
+// numpy writes every member with ZIP64 extra fields (force_zip64=True);
+// libzip reads those, data descriptors and the ZIP64 end records, and checks
+// each member's CRC-32. Members whose name does not end in ".npy" are
+// skipped. Encrypted members and compression methods other than
+// stored/deflate are unsupported (IoError).
 #pragma once
 
 #include "framework/io/npy.h"
@@ -55,11 +53,8 @@ std::map<std::string, NpyArray> ReadNpz(const std::filesystem::path& path);
 /// Options of WriteNpz.
 struct NpzWriteOptions {
   /// Deflate members (numpy.savez_compressed) instead of storing them
-  /// (numpy.savez).
+  /// (numpy.savez). ZIP64 records are written where sizes need them.
   bool compress = false;
-  /// Write ZIP64 extra fields and end records even when sizes are small (as
-  /// numpy does for the local headers); sizes >= 4 GiB always use ZIP64.
-  bool force_zip64 = false;
 };
 
 /// Writes `arrays` as an .npz (members "<key>.npy" in key order) atomically

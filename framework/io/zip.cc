@@ -2,208 +2,61 @@
 
 #include "framework/core/error.h"
 #include "framework/core/file.h"
-#include "framework/io/little_endian.h"
 
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <ctime>
+#include <deque>
+#include <mutex>
 #include <utility>
+#include <zip.h>
 #include <zlib.h>
 
 namespace soma {
 namespace {
 
-using internal::Le16;
-using internal::Le32;
-using internal::Le64;
-using internal::Put16;
-using internal::Put32;
-using internal::Put64;
-
-// Zip record signatures (APPNOTE 6.3, sections 4.3.7, 4.3.12, 4.3.14-16).
-constexpr uint32_t kLocalHeaderSignature = 0x04034b50;
-constexpr uint32_t kCentralHeaderSignature = 0x02014b50;
-constexpr uint32_t kEndOfCentralDirSignature = 0x06054b50;
-constexpr uint32_t kZip64EndOfCentralDirSignature = 0x06064b50;
-constexpr uint32_t kZip64LocatorSignature = 0x07064b50;
-constexpr uint16_t kZip64ExtraId = 0x0001;
-constexpr size_t kLocalHeaderSize = 30;
-constexpr size_t kCentralHeaderSize = 46;
-constexpr size_t kEndOfCentralDirSize = 22;
-constexpr size_t kZip64LocatorSize = 20;
-constexpr size_t kZip64EndOfCentralDirSize = 56;
-constexpr uint32_t kMax32 = 0xFFFFFFFFu;
-constexpr uint16_t kMax16 = 0xFFFFu;
-// DOS date 1980-01-01, time 00:00 (deterministic archives).
-constexpr uint16_t kDosDate = (0 << 9) | (1 << 5) | 1;
-constexpr uint16_t kDosTime = 0;
-// Deflate's maximum expansion is 258 bytes per 2-bit code, ~1032:1.
-constexpr uint64_t kMaxDeflateRatio = 1100;
-// zlib's avail_in/avail_out are 32-bit: feed at most this much per call.
+// zlib's inflate takes at most 4 GiB per call.
 constexpr size_t kZlibChunk = size_t{1} << 30;
 
-uint32_t Crc32(std::string_view bytes) {
-  uLong crc = crc32(0L, Z_NULL, 0);
-  size_t offset = 0;
-  while (offset < bytes.size()) {
-    const size_t n = std::min(kZlibChunk, bytes.size() - offset);
-    crc = crc32(crc,
-                reinterpret_cast<const Bytef*>(bytes.data() + offset),
-                static_cast<uInt>(n));
-    offset += n;
-  }
-  return static_cast<uint32_t>(crc);
+// libzip's description of `error`, then releases it.
+std::string TakeMessage(zip_error_t* error) {
+  std::string message = zip_error_strerror(error);
+  zip_error_fini(error);
+  return message;
 }
 
-// ---------------------------------------------------------------------------
-// zlib.
-
-std::string InflateRaw(std::string_view compressed,
-                       uint64_t expected_size,
-                       std::string_view source) {
-  z_stream stream{};
-  if (inflateInit2(&stream, -MAX_WBITS) != Z_OK) {
-    throw IoError(fmt::format("{}: zlib inflateInit2 failed", source));
+// What went wrong reading a member, from libzip's error code.
+std::string DescribeReadError(int code, const std::string& libzip_message) {
+  switch (code) {
+    case ZIP_ER_CRC:
+      return "CRC-32 mismatch (corrupt data)";
+    case ZIP_ER_ZLIB:
+    case ZIP_ER_COMPRESSED_DATA:
+      return fmt::format("corrupt deflate stream ({})", libzip_message);
+    case ZIP_ER_EOF:
+      return "truncated member data";
+    case ZIP_ER_COMPNOTSUPP:
+      return fmt::format("unsupported compression method ({})", libzip_message);
+    case ZIP_ER_ENCRNOTSUPP:
+    case ZIP_ER_NOPASSWD:
+    case ZIP_ER_WRONGPASSWD:
+      return fmt::format("encrypted member, not supported ({})",
+                         libzip_message);
+    default:
+      return libzip_message;
   }
-  std::string out(expected_size, '\0');
-  size_t in_offset = 0;
-  size_t out_offset = 0;
-  int status = Z_OK;
-  while (true) {
-    const size_t in_chunk = std::min(kZlibChunk, compressed.size() - in_offset);
-    const size_t out_chunk = std::min(kZlibChunk, out.size() - out_offset);
-    stream.next_in = reinterpret_cast<Bytef*>(
-        const_cast<char*>(compressed.data() + in_offset));
-    stream.avail_in = static_cast<uInt>(in_chunk);
-    stream.next_out = reinterpret_cast<Bytef*>(out.data() + out_offset);
-    stream.avail_out = static_cast<uInt>(out_chunk);
-    // A one-byte scratch output lets zlib report data beyond the declared
-    // size instead of stalling.
-    char scratch = 0;
-    if (out_chunk == 0) {
-      stream.next_out = reinterpret_cast<Bytef*>(&scratch);
-      stream.avail_out = 1;
-    }
-    status = inflate(&stream, Z_NO_FLUSH);
-    const size_t consumed = in_chunk - stream.avail_in;
-    const size_t produced = (out_chunk == 0 ? 1 : out_chunk) - stream.avail_out;
-    in_offset += consumed;
-    if (out_chunk == 0 && produced > 0) {
-      inflateEnd(&stream);
-      throw IoError(fmt::format(
-          "{}: deflate stream holds more than the declared {} bytes",
-          source,
-          expected_size));
-    }
-    out_offset += out_chunk == 0 ? 0 : produced;
-    if (status == Z_STREAM_END) break;
-    if (status != Z_OK && status != Z_BUF_ERROR) {
-      const std::string message = stream.msg ? stream.msg : "unknown error";
-      inflateEnd(&stream);
-      throw IoError(
-          fmt::format("{}: corrupt deflate stream ({})", source, message));
-    }
-    if (consumed == 0 && produced == 0) {
-      inflateEnd(&stream);
-      throw IoError(
-          fmt::format("{}: truncated deflate stream ({} of {} bytes decoded)",
-                      source,
-                      out_offset,
-                      expected_size));
-    }
-  }
-  inflateEnd(&stream);
-  if (out_offset != expected_size) {
-    throw IoError(fmt::format(
-        "{}: deflate stream decodes to {} bytes, the directory says {}",
-        source,
-        out_offset,
-        expected_size));
-  }
-  return out;
 }
 
-std::string DeflateRaw(std::string_view bytes) {
-  z_stream stream{};
-  if (deflateInit2(&stream,
-                   Z_DEFAULT_COMPRESSION,
-                   Z_DEFLATED,
-                   -MAX_WBITS,
-                   8,
-                   Z_DEFAULT_STRATEGY) != Z_OK) {
-    throw IoError("zlib deflateInit2 failed");
-  }
-  std::string out;
-  size_t in_offset = 0;
-  std::vector<char> buffer(1 << 16);
-  while (true) {
-    const size_t in_chunk = std::min(kZlibChunk, bytes.size() - in_offset);
-    stream.next_in =
-        reinterpret_cast<Bytef*>(const_cast<char*>(bytes.data() + in_offset));
-    stream.avail_in = static_cast<uInt>(in_chunk);
-    const bool last = in_offset + in_chunk == bytes.size();
-    int status = Z_OK;
-    do {
-      stream.next_out = reinterpret_cast<Bytef*>(buffer.data());
-      stream.avail_out = static_cast<uInt>(buffer.size());
-      status = deflate(&stream, last ? Z_FINISH : Z_NO_FLUSH);
-      if (status == Z_STREAM_ERROR) {
-        deflateEnd(&stream);
-        throw IoError("zlib deflate failed");
-      }
-      out.append(buffer.data(), buffer.size() - stream.avail_out);
-    } while (stream.avail_out == 0);
-    in_offset += in_chunk;
-    if (last && status == Z_STREAM_END) break;
-  }
-  deflateEnd(&stream);
-  return out;
-}
-
-// ---------------------------------------------------------------------------
-// Zip reading helpers.
-
-// Values from a ZIP64 extended-information extra field (APPNOTE 4.5.3): the
-// fields present are those whose 32-bit counterpart is 0xFFFFFFFF, in the
-// order uncompressed size, compressed size, local header offset.
-void ApplyZip64Extra(std::string_view extra,
-                     bool need_uncompressed,
-                     bool need_compressed,
-                     bool need_offset,
-                     uint64_t* uncompressed,
-                     uint64_t* compressed,
-                     uint64_t* offset,
-                     std::string_view source) {
-  size_t pos = 0;
-  while (pos + 4 <= extra.size()) {
-    const uint16_t id = Le16(extra.data() + pos);
-    const uint16_t size = Le16(extra.data() + pos + 2);
-    if (pos + 4 + size > extra.size()) {
-      throw IoError(fmt::format("{}: extra field overruns its record", source));
-    }
-    if (id == kZip64ExtraId) {
-      const char* p = extra.data() + pos + 4;
-      size_t avail = size;
-      auto take = [&](uint64_t* value) {
-        if (avail < 8) {
-          throw IoError(fmt::format("{}: ZIP64 extra field too short", source));
-        }
-        *value = Le64(p);
-        p += 8;
-        avail -= 8;
-      };
-      if (need_uncompressed) take(uncompressed);
-      if (need_compressed) take(compressed);
-      if (need_offset) take(offset);
-      return;
-    }
-    pos += 4 + size;
-  }
-  if (need_uncompressed || need_compressed || need_offset) {
-    throw IoError(fmt::format(
-        "{}: sizes are 0xFFFFFFFF but no ZIP64 extra field is present",
-        source));
-  }
+// 1980-01-01 00:00 local time: the earliest DOS timestamp, which libzip
+// converts back to 1980-01-01 00:00 (stable bytes on any machine).
+time_t FixedMtime() {
+  std::tm tm{};
+  tm.tm_year = 80;
+  tm.tm_mon = 0;
+  tm.tm_mday = 1;
+  tm.tm_isdst = -1;
+  return std::mktime(&tm);
 }
 
 }  // namespace
@@ -211,293 +64,236 @@ void ApplyZip64Extra(std::string_view extra,
 // ---------------------------------------------------------------------------
 // Reading.
 
+struct ZipReader::Impl {
+  std::string bytes;  // the archive; libzip reads it in place
+  zip_t* archive = nullptr;
+  std::mutex mutex;  // libzip archives are not thread-safe
+
+  ~Impl() {
+    if (archive != nullptr) zip_discard(archive);
+  }
+};
+
 ZipReader::ZipReader(std::string bytes, std::string source)
-    : bytes_(std::move(bytes)), source_(std::move(source)) {
-  const std::string& file = source_;
-  const size_t n = bytes_.size();
-  if (n < kEndOfCentralDirSize) {
+    : impl_(std::make_unique<Impl>()), source_(std::move(source)) {
+  impl_->bytes = std::move(bytes);
+  zip_error_t error;
+  zip_error_init(&error);
+  zip_source_t* data = zip_source_buffer_create(
+      impl_->bytes.data(), impl_->bytes.size(), 0, &error);
+  if (data == nullptr) {
     throw IoError(fmt::format(
-        "{}: not a zip archive ({} bytes, too short for an end record)",
-        file,
-        n));
+        "{}: cannot read zip archive: {}", source_, TakeMessage(&error)));
   }
-  // The end-of-central-directory record sits in the last 22 + 65535 bytes.
-  size_t eocd = std::string::npos;
-  const size_t lowest =
-      n > kEndOfCentralDirSize + kMax16 ? n - kEndOfCentralDirSize - kMax16 : 0;
-  for (size_t pos = n - kEndOfCentralDirSize + 1; pos-- > lowest;) {
-    if (Le32(bytes_.data() + pos) == kEndOfCentralDirSignature) {
-      eocd = pos;
-      break;
-    }
-  }
-  if (eocd == std::string::npos) {
-    if (n >= 4 && Le32(bytes_.data()) == kLocalHeaderSignature) {
+  impl_->archive =
+      zip_open_from_source(data, ZIP_RDONLY | ZIP_CHECKCONS, &error);
+  if (impl_->archive == nullptr) {
+    zip_source_free(data);
+    const int code = zip_error_code_zip(&error);
+    const std::string message = TakeMessage(&error);
+    // libzip reports both a file cut short (no end-of-central-directory
+    // record) and an end record that points at no valid central directory
+    // as "not a zip archive"; a file starting with a local file header is
+    // one of those two.
+    const std::string_view bytes_view(impl_->bytes);
+    const bool starts_like_zip = bytes_view.substr(0, 4) == "PK\x03\x04";
+    if (code == ZIP_ER_NOZIP && starts_like_zip) {
+      // The end record sits in the last 22 + 65535 (comment) bytes.
+      const size_t tail = std::min<size_t>(bytes_view.size(), 22 + 0xFFFF);
+      if (bytes_view.substr(bytes_view.size() - tail).find("PK\x05\x06") ==
+          std::string_view::npos) {
+        throw IoError(fmt::format(
+            "{}: truncated zip archive (starts with a zip member but has no "
+            "end-of-central-directory record)",
+            source_));
+      }
       throw IoError(fmt::format(
-          "{}: truncated zip archive (no end-of-central-directory record)",
-          file));
+          "{}: corrupt zip archive (the end-of-central-directory record does "
+          "not lead to a valid central directory)",
+          source_));
     }
-    throw IoError(fmt::format(
-        "{}: not a zip archive (no end-of-central-directory record)", file));
-  }
-  const char* e = bytes_.data() + eocd;
-  uint64_t num_entries = Le16(e + 10);
-  uint64_t cd_size = Le32(e + 12);
-  uint64_t cd_offset = Le32(e + 16);
-  if (num_entries == kMax16 || cd_size == kMax32 || cd_offset == kMax32) {
-    if (eocd < kZip64LocatorSize ||
-        Le32(bytes_.data() + eocd - kZip64LocatorSize) !=
-            kZip64LocatorSignature) {
+    if (code == ZIP_ER_NOZIP)
+      throw IoError(fmt::format("{}: not a zip archive", source_));
+    if (code == ZIP_ER_INCONS) {
       throw IoError(fmt::format(
-          "{}: ZIP64 end record expected but its locator is missing", file));
+          "{}: corrupt or truncated zip archive ({})", source_, message));
     }
-    const uint64_t z64 = Le64(bytes_.data() + eocd - kZip64LocatorSize + 8);
-    if (z64 + kZip64EndOfCentralDirSize > n ||
-        Le32(bytes_.data() + z64) != kZip64EndOfCentralDirSignature) {
-      throw IoError(
-          fmt::format("{}: bad ZIP64 end-of-central-directory record", file));
-    }
-    num_entries = Le64(bytes_.data() + z64 + 32);
-    cd_size = Le64(bytes_.data() + z64 + 40);
-    cd_offset = Le64(bytes_.data() + z64 + 48);
-  }
-  if (cd_offset > n || cd_size > n - cd_offset) {
     throw IoError(
-        fmt::format("{}: truncated zip archive (central directory at {} + {} "
-                    "bytes, file has {})",
-                    file,
-                    cd_offset,
-                    cd_size,
-                    n));
+        fmt::format("{}: cannot open zip archive: {}", source_, message));
   }
-  size_t pos = cd_offset;
-  const size_t cd_end = cd_offset + cd_size;
-  for (uint64_t i = 0; i < num_entries; ++i) {
-    if (pos + kCentralHeaderSize > cd_end ||
-        Le32(bytes_.data() + pos) != kCentralHeaderSignature) {
-      throw IoError(
-          fmt::format("{}: corrupt zip central directory (entry {} of {})",
-                      file,
-                      i,
-                      num_entries));
+  const zip_int64_t count = zip_get_num_entries(impl_->archive, 0);
+  for (zip_int64_t i = 0; i < count; ++i) {
+    zip_stat_t stat;
+    zip_stat_init(&stat);
+    if (zip_stat_index(
+            impl_->archive, static_cast<zip_uint64_t>(i), 0, &stat) != 0) {
+      throw IoError(fmt::format("{}: corrupt zip archive (member {}: {})",
+                                source_,
+                                i,
+                                zip_strerror(impl_->archive)));
     }
-    const char* c = bytes_.data() + pos;
     ZipEntry entry;
-    entry.flags = Le16(c + 8);
-    entry.method = Le16(c + 10);
-    entry.crc32 = Le32(c + 16);
-    const uint32_t csize32 = Le32(c + 20);
-    const uint32_t usize32 = Le32(c + 24);
-    const uint16_t name_len = Le16(c + 28);
-    const uint16_t extra_len = Le16(c + 30);
-    const uint16_t comment_len = Le16(c + 32);
-    const uint32_t offset32 = Le32(c + 42);
-    if (pos + kCentralHeaderSize + name_len + extra_len + comment_len >
-        cd_end) {
-      throw IoError(fmt::format(
-          "{}: corrupt zip central directory (entry {} overruns it)", file, i));
-    }
-    entry.name.assign(c + kCentralHeaderSize, name_len);
-    entry.compressed_size = csize32;
-    entry.uncompressed_size = usize32;
-    entry.local_header_offset = offset32;
-    ApplyZip64Extra(
-        std::string_view(c + kCentralHeaderSize + name_len, extra_len),
-        usize32 == kMax32,
-        csize32 == kMax32,
-        offset32 == kMax32,
-        &entry.uncompressed_size,
-        &entry.compressed_size,
-        &entry.local_header_offset,
-        fmt::format("{}: entry '{}'", file, entry.name));
-    pos += kCentralHeaderSize + name_len + extra_len + comment_len;
+    entry.name = stat.name != nullptr ? stat.name : "";
+    entry.index = static_cast<uint64_t>(i);
+    entry.method = static_cast<uint16_t>(stat.comp_method);
+    entry.crc32 = stat.crc;
+    entry.compressed_size = stat.comp_size;
+    entry.uncompressed_size = stat.size;
     entries_.push_back(std::move(entry));
   }
 }
 
+ZipReader::~ZipReader() = default;
+ZipReader::ZipReader(ZipReader&&) noexcept = default;
+ZipReader& ZipReader::operator=(ZipReader&&) noexcept = default;
+
 std::string ZipReader::Read(const ZipEntry& entry) const {
-  const std::string source = fmt::format("{}: entry '{}'", source_, entry.name);
-  if (entry.flags & 0x1) {
-    throw IoError(
-        fmt::format("{}: encrypted zip members are not supported", source));
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
+  const auto fail = [&](const std::string& what) {
+    throw IoError(fmt::format("{}: entry '{}': {}", source_, entry.name, what));
+  };
+  zip_file_t* file = zip_fopen_index(impl_->archive, entry.index, 0);
+  if (file == nullptr) {
+    zip_error_t* error = zip_get_error(impl_->archive);
+    const std::string what =
+        DescribeReadError(zip_error_code_zip(error), zip_error_strerror(error));
+    zip_error_clear(impl_->archive);
+    fail(what);
   }
-  const uint64_t offset = entry.local_header_offset;
-  if (offset > bytes_.size() || bytes_.size() - offset < kLocalHeaderSize ||
-      Le32(bytes_.data() + offset) != kLocalHeaderSignature) {
-    throw IoError(
-        fmt::format("{}: bad local header at offset {} (truncated or corrupt)",
-                    source,
-                    offset));
-  }
-  const char* l = bytes_.data() + offset;
-  const uint64_t data_start = offset + kLocalHeaderSize + Le16(l + 26) +
-                              static_cast<uint64_t>(Le16(l + 28));
-  if (data_start > bytes_.size() ||
-      bytes_.size() - data_start < entry.compressed_size) {
-    throw IoError(fmt::format(
-        "{}: truncated ({} bytes of data declared at offset {}, file has {})",
-        source,
-        entry.compressed_size,
-        data_start,
-        bytes_.size()));
-  }
-  const std::string_view raw(bytes_.data() + data_start, entry.compressed_size);
-  std::string data;
-  if (entry.method == 0) {
-    if (entry.compressed_size != entry.uncompressed_size) {
-      throw IoError(
-          fmt::format("{}: stored member with compressed size {} != size {}",
-                      source,
-                      entry.compressed_size,
-                      entry.uncompressed_size));
+  std::string out(entry.uncompressed_size, '\0');
+  size_t done = 0;
+  char extra = 0;
+  while (true) {
+    // Read until libzip reports the end: only then has it checked the CRC.
+    const bool full = done >= out.size();
+    const zip_int64_t n = zip_fread(
+        file, full ? &extra : out.data() + done, full ? 1 : out.size() - done);
+    if (n < 0) {
+      zip_error_t* error = zip_file_get_error(file);
+      const std::string what = DescribeReadError(zip_error_code_zip(error),
+                                                 zip_error_strerror(error));
+      zip_fclose(file);
+      fail(what);
     }
-    data = std::string(raw);
-  } else if (entry.method == 8) {
-    // Deflate cannot expand data more than ~1032:1; a larger declared size is
-    // corruption (and must not drive the allocation below).
-    if (entry.uncompressed_size >
-        kMaxDeflateRatio * entry.compressed_size + 1024) {
-      throw IoError(
-          fmt::format("{}: declares {} bytes from {} deflated bytes, more than "
-                      "deflate can produce "
-                      "(corrupt directory)",
-                      source,
-                      entry.uncompressed_size,
-                      entry.compressed_size));
+    if (n == 0) break;
+    if (full) {
+      zip_fclose(file);
+      fail(fmt::format("more data than the {} bytes the directory declares",
+                       out.size()));
     }
-    data = InflateRaw(raw, entry.uncompressed_size, source);
-  } else {
-    throw IoError(
-        fmt::format("{}: unsupported zip compression method {} (expected 0 "
-                    "stored or 8 deflate)",
-                    source,
-                    entry.method));
+    done += static_cast<size_t>(n);
   }
-  const uint32_t crc = Crc32(data);
-  if (crc != entry.crc32) {
-    throw IoError(fmt::format(
-        "{}: CRC-32 mismatch (stored {:08x}, computed {:08x}): corrupt data",
-        source,
-        entry.crc32,
-        crc));
+  zip_fclose(file);
+  if (done != out.size()) {
+    fail(fmt::format(
+        "truncated member data ({} of {} bytes)", done, out.size()));
   }
-  return data;
+  return out;
 }
 
 // ---------------------------------------------------------------------------
 // Writing.
 
+struct ZipWriter::Impl {
+  zip_source_t* buffer = nullptr;  // the archive being built (kept)
+  zip_t* archive = nullptr;
+  std::deque<std::string> contents;  // member bytes, alive until zip_close
+  bool finished = false;
+
+  ~Impl() {
+    if (archive != nullptr) zip_discard(archive);
+    if (buffer != nullptr) zip_source_free(buffer);
+  }
+};
+
 ZipWriter::ZipWriter(std::ostream& out, ZipWriteOptions options)
-    : out_(out), options_(options) {}
+    : out_(out), options_(options), impl_(std::make_unique<Impl>()) {
+  zip_error_t error;
+  zip_error_init(&error);
+  impl_->buffer = zip_source_buffer_create(nullptr, 0, 0, &error);
+  if (impl_->buffer == nullptr) {
+    throw IoError(fmt::format("cannot create an in-memory zip archive: {}",
+                              TakeMessage(&error)));
+  }
+  zip_source_keep(impl_->buffer);  // read it back after zip_close
+  impl_->archive = zip_open_from_source(impl_->buffer, ZIP_TRUNCATE, &error);
+  if (impl_->archive == nullptr) {
+    zip_source_free(impl_->buffer);  // the failed open's reference
+    throw IoError(fmt::format("cannot create an in-memory zip archive: {}",
+                              TakeMessage(&error)));
+  }
+  zip_error_fini(&error);
+}
+
+ZipWriter::~ZipWriter() = default;
 
 void ZipWriter::Add(std::string_view name, std::string_view bytes) {
-  if (name.size() > kMax16) {
+  SOMA_CHECK(!impl_->finished) << "ZipWriter::Add after Finish";
+  if (name.empty() || name.size() > 0xFFFF) {
     throw IoError(fmt::format(
-        "zip member name of {} bytes is longer than 65535", name.size()));
+        "zip member name of {} bytes (expected 1 to 65535)", name.size()));
   }
-  const uint32_t crc = Crc32(bytes);
-  std::string deflated;
-  if (options_.deflate) deflated = DeflateRaw(bytes);
-  std::string_view payload = bytes;
-  if (options_.deflate) payload = deflated;
-  const uint16_t method = options_.deflate ? 8 : 0;
-  const uint64_t usize = bytes.size();
-  const uint64_t csize = payload.size();
-  const bool sizes64 =
-      options_.force_zip64 || usize >= kMax32 || csize >= kMax32;
-  const bool offset64 = options_.force_zip64 || offset_ >= kMax32;
-  const uint16_t version = (sizes64 || offset64) ? 45 : 20;
-
-  std::string local;
-  Put32(local, kLocalHeaderSignature);
-  Put16(local, version);
-  Put16(local, 0);  // flags
-  Put16(local, method);
-  Put16(local, kDosTime);
-  Put16(local, kDosDate);
-  Put32(local, crc);
-  Put32(local, sizes64 ? kMax32 : static_cast<uint32_t>(csize));
-  Put32(local, sizes64 ? kMax32 : static_cast<uint32_t>(usize));
-  Put16(local, static_cast<uint16_t>(name.size()));
-  Put16(local, sizes64 ? 20 : 0);
-  local += name;
-  if (sizes64) {
-    Put16(local, kZip64ExtraId);
-    Put16(local, 16);
-    Put64(local, usize);
-    Put64(local, csize);
+  const std::string& data = impl_->contents.emplace_back(bytes);
+  zip_source_t* source =
+      zip_source_buffer(impl_->archive, data.data(), data.size(), 0);
+  if (source == nullptr) {
+    throw IoError(
+        fmt::format("zip member '{}': {}", name, zip_strerror(impl_->archive)));
   }
-  out_.write(local.data(), static_cast<std::streamsize>(local.size()));
-  out_.write(payload.data(), static_cast<std::streamsize>(payload.size()));
-
-  std::string extra;
-  if (sizes64 || offset64) {
-    std::string fields;
-    if (sizes64) {
-      Put64(fields, usize);
-      Put64(fields, csize);
-    }
-    if (offset64) Put64(fields, offset_);
-    Put16(extra, kZip64ExtraId);
-    Put16(extra, static_cast<uint16_t>(fields.size()));
-    extra += fields;
+  const zip_int64_t index = zip_file_add(
+      impl_->archive, std::string(name).c_str(), source, ZIP_FL_ENC_GUESS);
+  if (index < 0) {
+    zip_source_free(source);
+    throw IoError(
+        fmt::format("zip member '{}': {}", name, zip_strerror(impl_->archive)));
   }
-  Put32(central_, kCentralHeaderSignature);
-  Put16(central_, version);  // made by (MS-DOS, spec version)
-  Put16(central_, version);  // needed
-  Put16(central_, 0);
-  Put16(central_, method);
-  Put16(central_, kDosTime);
-  Put16(central_, kDosDate);
-  Put32(central_, crc);
-  Put32(central_, sizes64 ? kMax32 : static_cast<uint32_t>(csize));
-  Put32(central_, sizes64 ? kMax32 : static_cast<uint32_t>(usize));
-  Put16(central_, static_cast<uint16_t>(name.size()));
-  Put16(central_, static_cast<uint16_t>(extra.size()));
-  Put16(central_, 0);            // comment
-  Put16(central_, 0);            // disk
-  Put16(central_, 0);            // internal attributes
-  Put32(central_, 0x81A40000u);  // external attributes: regular file, 0644
-  Put32(central_, offset64 ? kMax32 : static_cast<uint32_t>(offset_));
-  central_ += name;
-  central_ += extra;
-  offset_ += local.size() + payload.size();
-  ++num_entries_;
+  const auto member = static_cast<zip_uint64_t>(index);
+  if (zip_set_file_compression(impl_->archive,
+                               member,
+                               options_.deflate ? ZIP_CM_DEFLATE : ZIP_CM_STORE,
+                               0) != 0 ||
+      zip_file_set_mtime(impl_->archive, member, FixedMtime(), 0) != 0) {
+    throw IoError(
+        fmt::format("zip member '{}': {}", name, zip_strerror(impl_->archive)));
+  }
 }
 
 void ZipWriter::Finish() {
-  const uint64_t cd_offset = offset_;
-  const uint64_t cd_size = central_.size();
-  const uint64_t num_entries = num_entries_;
-  const bool end64 = options_.force_zip64 || num_entries >= kMax16 ||
-                     cd_offset >= kMax32 || cd_size >= kMax32;
-  std::string tail = central_;
-  if (end64) {
-    const uint64_t z64_offset = cd_offset + cd_size;
-    Put32(tail, kZip64EndOfCentralDirSignature);
-    Put64(tail, kZip64EndOfCentralDirSize - 12);
-    Put16(tail, 45);
-    Put16(tail, 45);
-    Put32(tail, 0);
-    Put32(tail, 0);
-    Put64(tail, num_entries);
-    Put64(tail, num_entries);
-    Put64(tail, cd_size);
-    Put64(tail, cd_offset);
-    Put32(tail, kZip64LocatorSignature);
-    Put32(tail, 0);
-    Put64(tail, z64_offset);
-    Put32(tail, 1);
+  SOMA_CHECK(!impl_->finished) << "ZipWriter::Finish called twice";
+  impl_->finished = true;
+  const bool empty = zip_get_num_entries(impl_->archive, 0) == 0;
+  if (zip_close(impl_->archive) != 0) {
+    const std::string message = zip_strerror(impl_->archive);
+    throw IoError(fmt::format("cannot write zip archive: {}", message));
   }
-  Put32(tail, kEndOfCentralDirSignature);
-  Put16(tail, 0);
-  Put16(tail, 0);
-  Put16(tail, end64 ? kMax16 : static_cast<uint16_t>(num_entries));
-  Put16(tail, end64 ? kMax16 : static_cast<uint16_t>(num_entries));
-  Put32(tail, end64 ? kMax32 : static_cast<uint32_t>(cd_size));
-  Put32(tail, end64 ? kMax32 : static_cast<uint32_t>(cd_offset));
-  Put16(tail, 0);
-  out_.write(tail.data(), static_cast<std::streamsize>(tail.size()));
+  impl_->archive = nullptr;
+  if (empty) {
+    // libzip writes nothing for an archive without members; write the
+    // 22-byte end-of-central-directory record of an empty archive, as
+    // Python's zipfile and numpy.savez do.
+    const char kEmptyArchive[22] = {'P', 'K', 5, 6};
+    out_.write(kEmptyArchive, sizeof(kEmptyArchive));
+    return;
+  }
+  if (zip_source_open(impl_->buffer) != 0) {
+    throw IoError(
+        fmt::format("cannot read back the zip archive: {}",
+                    zip_error_strerror(zip_source_error(impl_->buffer))));
+  }
+  std::vector<char> chunk(size_t{1} << 16);
+  while (true) {
+    const zip_int64_t n =
+        zip_source_read(impl_->buffer, chunk.data(), chunk.size());
+    if (n < 0) {
+      zip_source_close(impl_->buffer);
+      throw IoError(
+          fmt::format("cannot read back the zip archive: {}",
+                      zip_error_strerror(zip_source_error(impl_->buffer))));
+    }
+    if (n == 0) break;
+    out_.write(chunk.data(), static_cast<std::streamsize>(n));
+  }
+  zip_source_close(impl_->buffer);
 }
 
 // ---------------------------------------------------------------------------

@@ -1,45 +1,94 @@
 #include "framework/core/image.h"
 
+#include "framework/core/error.h"
 #include "framework/core/file.h"
 #include "framework/core/plot.h"
 #include "framework/testing/testing.h"
 
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include <zlib.h>
+#include <filesystem>
+#include <png.h>
+#include <string>
+#include <vector>
 
 namespace soma {
 namespace {
 
-uint32_t ReadU32(const std::vector<uint8_t>& b, size_t at) {
-  return (uint32_t(b[at]) << 24) | (uint32_t(b[at + 1]) << 16) |
-         (uint32_t(b[at + 2]) << 8) | b[at + 3];
+using ::testing::HasSubstr;
+using ::testing::ThrowsMessage;
+
+// Decodes `png` with libpng into 8-bit RGB (width, height, pixels).
+struct Decoded {
+  int width = 0, height = 0;
+  std::vector<uint8_t> rgb;
+};
+
+Decoded DecodePng(const std::vector<uint8_t>& png) {
+  png_image image{};
+  image.version = PNG_IMAGE_VERSION;
+  EXPECT_TRUE(png_image_begin_read_from_memory(&image, png.data(), png.size()))
+      << image.message;
+  image.format = PNG_FORMAT_RGB;
+  Decoded out;
+  out.width = static_cast<int>(image.width);
+  out.height = static_cast<int>(image.height);
+  out.rgb.resize(PNG_IMAGE_SIZE(image));
+  EXPECT_TRUE(png_image_finish_read(
+      &image, nullptr, out.rgb.data(), /*row_stride=*/0, nullptr))
+      << image.message;
+  return out;
 }
 
-TEST(Image, PngHasSignatureSizeAndDecodablePixels) {
+TEST(Image, PngRoundTripsEveryPixel) {
   Image image(7, 3, kBlack);
   image.Set(2, 1, Rgb{10, 20, 30});
+  image.Set(6, 2, Rgb{255, 128, 1});
   const std::vector<uint8_t> png = image.EncodePng();
   ASSERT_GT(png.size(), 33u);
-  EXPECT_EQ(png[0], 0x89);
-  EXPECT_EQ(png[1], 'P');
-  EXPECT_EQ(ReadU32(png, 16), 7u);  // IHDR width
-  EXPECT_EQ(ReadU32(png, 20), 3u);  // IHDR height
-  // Inflate the IDAT chunk and check the pixel we set.
-  const size_t idat = 8 + 25;  // signature + IHDR chunk
-  ASSERT_EQ(std::string(png.begin() + idat + 4, png.begin() + idat + 8),
-            "IDAT");
-  const uint32_t length = ReadU32(png, idat);
-  std::vector<uint8_t> raw(3 * (7 * 3 + 1));
-  uLongf raw_size = raw.size();
-  ASSERT_EQ(uncompress(raw.data(), &raw_size, png.data() + idat + 8, length),
-            Z_OK);
-  ASSERT_EQ(raw_size, raw.size());
-  const size_t row1 = 1 * (7 * 3 + 1);
-  EXPECT_EQ(raw[row1], 0);  // filter byte
-  EXPECT_EQ(raw[row1 + 1 + 2 * 3], 10);
-  EXPECT_EQ(raw[row1 + 1 + 2 * 3 + 1], 20);
-  EXPECT_EQ(raw[row1 + 1 + 2 * 3 + 2], 30);
+  EXPECT_EQ(std::string(png.begin(), png.begin() + 8),
+            std::string("\x89PNG\r\n\x1a\n", 8));
+  const Decoded decoded = DecodePng(png);
+  ASSERT_EQ(decoded.width, 7);
+  ASSERT_EQ(decoded.height, 3);
+  for (int y = 0; y < 3; ++y) {
+    for (int x = 0; x < 7; ++x) {
+      const size_t at = 3 * (static_cast<size_t>(y) * 7 + x);
+      const Rgb expected = image.Get(x, y);
+      EXPECT_EQ(decoded.rgb[at], expected.r) << x << "," << y;
+      EXPECT_EQ(decoded.rgb[at + 1], expected.g) << x << "," << y;
+      EXPECT_EQ(decoded.rgb[at + 2], expected.b) << x << "," << y;
+    }
+  }
+  EXPECT_EQ(decoded.rgb[3 * (1 * 7 + 2) + 1], 20);
+}
+
+TEST(Image, PngOfAPlotIsCompressedAndDeterministic) {
+  const Image plot = LinePlot({{"loss", {0, 1, 2, 3}, {1.0, 0.5, 0.3, 0.25}}},
+                              {.title = "curve"});
+  const std::vector<uint8_t> png = plot.EncodePng();
+  EXPECT_LT(png.size(),
+            static_cast<size_t>(plot.width()) * plot.height() * 3 / 10);
+  EXPECT_EQ(png, plot.EncodePng());
+  EXPECT_EQ(DecodePng(png).width, plot.width());
+}
+
+TEST(Image, WritePngIsAtomicAndNamesThePathOnError) {
+  const auto dir = testing::CreateTestDir();
+  Image image(4, 4);
+  image.WritePng(dir / "a.png");
+  EXPECT_EQ(DecodePng([&] {
+              const std::string bytes = ReadFile(dir / "a.png");
+              return std::vector<uint8_t>(bytes.begin(), bytes.end());
+            }())
+                .height,
+            4);
+  EXPECT_FALSE(std::filesystem::exists(TempPathFor(dir / "a.png")));
+  // A directory where the file should go: the write fails, naming the path.
+  std::filesystem::create_directories(dir / "taken.png");
+  EXPECT_THAT([&] { image.WritePng(dir / "taken.png"); },
+              ThrowsMessage<IoError>(HasSubstr("taken.png")));
 }
 
 TEST(Image, TextDrawsInkInsideItsBox) {

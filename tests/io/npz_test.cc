@@ -142,12 +142,10 @@ TEST_P(NpzRoundTrip, PreservesEveryDtypeAndShape) {
   EXPECT_EQ(loaded.at("cube_f4").AsDoubles()[5], 2.5 - 3.0);
 }
 
-INSTANTIATE_TEST_SUITE_P(StoredDeflatedZip64,
+INSTANTIATE_TEST_SUITE_P(StoredDeflated,
                          NpzRoundTrip,
-                         ::testing::Values(NpzWriteOptions{false, false},
-                                           NpzWriteOptions{true, false},
-                                           NpzWriteOptions{false, true},
-                                           NpzWriteOptions{true, true}));
+                         ::testing::Values(NpzWriteOptions{false},
+                                           NpzWriteOptions{true}));
 
 TEST(Npz, DeflatedIsSmallerAndBytesAreDeterministic) {
   const std::filesystem::path dir = testing::CreateTestDir();
@@ -268,6 +266,29 @@ TEST(NpzErrors, TruncatedArchive) {
     EXPECT_NE(message.find("truncated"), std::string::npos)
         << keep << ": " << message;
   }
+}
+
+TEST(Npz, EmptyArchiveRoundTrips) {
+  const std::filesystem::path path = testing::CreateTestDir() / "empty.npz";
+  WriteNpz(path, {});
+  EXPECT_EQ(std::filesystem::file_size(path), 22u);  // end record only
+  EXPECT_TRUE(ReadNpz(path).empty());
+}
+
+TEST(NpzErrors, CorruptCentralDirectoryNamesTheFile) {
+  const std::filesystem::path dir = testing::CreateTestDir();
+  WriteNpz(dir / "a.npz", SampleArrays(), {.compress = true});
+  std::string bytes = ReadFile(dir / "a.npz");
+  // Overwrite the first central-directory record's signature and sizes.
+  const size_t cd = bytes.find("PK\x01\x02");
+  ASSERT_NE(cd, std::string::npos);
+  for (size_t i = cd; i < cd + 30; ++i) bytes[i] = 'X';
+  WriteFileAtomic(dir / "bad.npz", bytes);
+  const std::string message = ErrorOf([&] { ReadNpz(dir / "bad.npz"); });
+  EXPECT_NE(message.find((dir / "bad.npz").string() + ": "), std::string::npos)
+      << message;
+  EXPECT_NE(message.find("corrupt"), std::string::npos) << message;
+  EXPECT_EQ(message.find('\n'), std::string::npos) << message;
 }
 
 TEST(NpzErrors, CrcMismatchNamesTheEntry) {
