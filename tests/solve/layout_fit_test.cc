@@ -278,8 +278,9 @@ TEST(CaptureLayout, NameMapMakesACaptureUnderOtherNamesFittable) {
   const Capture capture = ReadCapture("Res16bits.c3d");
   const BodyModel& body = ProceduralBody();
   const MarkerLayout recognition = MakeBuiltinLayout(body, "superset89");
-  const MarkerNameMap map = ReadMarkerNameMap(
-      soma::testing::SourceDir() / "results/capture_layouts/res16bits_name_map.yaml");
+  const MarkerNameMap map =
+      ReadMarkerNameMap(soma::testing::SourceDir() /
+                        "results/capture_layouts/res16bits_name_map.yaml");
   CheckMarkerNameMap(map, recognition.Labels(), "the layout");
   const CaptureLayoutResult r = FitCapture(capture, map.Apply(capture.labels));
   std::printf(
