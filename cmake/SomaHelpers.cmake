@@ -108,17 +108,40 @@ endfunction()
 # soma_check_test_layers(): every MODULE test executable links only what its
 # module's library links (the module and the modules below it, with their
 # third-party libraries), the core-only test helpers and the plain gtest main,
-# and soma_testing_body only where the module is at or above body. Anything
-# else (a module above, soma::framework, torch or Ceres below model/solve, the
-# framework-initialising main) fails the configure step.
+# and soma_testing_body only where the module is at or above body. Every
+# module benchmark (tests/bench/CMakeLists.txt) links only what its module's
+# library links, the lower modules named in its SOMA_TEST_LOWER property
+# (each defined before the module: below it in the layer order) and Google
+# Benchmark. Anything else (a module above, soma::framework, torch or Ceres
+# below model/solve, the framework-initialising main) fails the configure
+# step. The CTest entry layers.test_executables checks the same on the graph
+# of `cmake --graphviz` (cmake/check_test_layers.py).
 function(soma_check_test_layers)
   get_property(tests GLOBAL PROPERTY SOMA_MODULE_TEST_EXECUTABLES)
+  get_property(benchmarks GLOBAL PROPERTY SOMA_MODULE_BENCHMARKS)
+  get_property(libraries GLOBAL PROPERTY SOMA_LIBRARIES)
   set(errors)
-  foreach(test IN LISTS tests)
+  foreach(test IN LISTS tests benchmarks)
     get_target_property(module ${test} SOMA_TEST_MODULE)
-    soma_link_closure(allowed soma_${module} soma_testing soma_testing_main GTest::gmock)
-    if(soma_body IN_LIST allowed)
-      list(APPEND allowed soma_testing_body)
+    if(test IN_LIST benchmarks)
+      get_target_property(lower ${test} SOMA_TEST_LOWER)
+      if(NOT lower)
+        set(lower)
+      endif()
+      list(FIND libraries soma_${module} position)
+      foreach(lib IN LISTS lower)
+        list(FIND libraries ${lib} lib_position)
+        if(lib_position LESS 0 OR lib_position GREATER position)
+          list(APPEND errors "${test} (module ${module}) names ${lib}, which is not a module below ${module}")
+        endif()
+      endforeach()
+      soma_link_closure(allowed soma_${module} ${lower} benchmark::benchmark
+                        benchmark::benchmark_main)
+    else()
+      soma_link_closure(allowed soma_${module} soma_testing soma_testing_main GTest::gmock)
+      if(soma_body IN_LIST allowed)
+        list(APPEND allowed soma_testing_body)
+      endif()
     endif()
     get_target_property(direct ${test} LINK_LIBRARIES)
     soma_link_closure(linked ${direct})
@@ -131,8 +154,10 @@ function(soma_check_test_layers)
   if(errors)
     list(JOIN errors "\n  " text)
     message(FATAL_ERROR "somalab: test executables reach above their module "
-                        "(tests/CMakeLists.txt):\n  ${text}")
+                        "(tests/CMakeLists.txt, tests/bench/CMakeLists.txt):\n  ${text}")
   endif()
   list(LENGTH tests count)
-  message(STATUS "somalab: ${count} module test executables link only their module and below")
+  list(LENGTH benchmarks bench_count)
+  message(STATUS "somalab: ${count} module test executables and ${bench_count} module "
+                 "benchmarks link only their module and below")
 endfunction()

@@ -5,6 +5,8 @@ set -euo pipefail
 
 PACKAGES=(
   build-essential cmake git pkg-config ccache clang-format
+  # scripts/tidy.sh (CI runs it from scripts/test.sh).
+  clang-tidy
   # The fuzzers (scripts/fuzz.sh): clang, its libFuzzer/sanitizer
   # runtimes and its OpenMP headers (the model library needs OpenMP).
   clang libclang-rt-14-dev libomp-14-dev

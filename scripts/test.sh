@@ -5,6 +5,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh
 ctest --test-dir build --output-on-failure -j"$(nproc)" --timeout 600
+# clang-tidy (.clang-tidy, warnings are errors) on the library code and the
+# files changed since the merge base with main: scripts/tidy.sh says which
+# files and why not all (time).
+bash scripts/tidy.sh --ci
 # Bounded libFuzzer runs (clang; crashes fail the run) of the C3D reader, the
 # override grammar and YAML loading + composition, 30 s each with a fixed seed
 # so the same inputs are explored on every run.

@@ -527,8 +527,7 @@ struct PlannedJob {
 std::string LauncherKind(const ConfigNode& root) {
   const ConfigNode* target = root.FindPath("hydra.launcher.name");
   if (target == nullptr || target->IsNull()) return "basic";
-  const std::string kind =
-      target->IsString() ? target->AsString() : target->text();
+  std::string kind = target->IsString() ? target->AsString() : target->text();
   if (kind != "basic" && kind != "local" && kind != "slurm") {
     throw ConfigError(fmt::format(
         "Unknown launcher hydra.launcher.name = {}; available launchers: "

@@ -124,14 +124,14 @@ struct Element {
   std::string GroupPath() const {
     if (is_group) {
       const bool absolute = group.starts_with('/') || external_append;
-      const std::string g = StripLeadingSlash(group);
+      std::string g = StripLeadingSlash(group);
       if (parent_base_dir.empty() || absolute) return g;
       return parent_base_dir + "/" + g;
     }
     const bool absolute = path.starts_with('/');
     const std::string p = StripLeadingSlash(path);
     const size_t slash = p.rfind('/');
-    const std::string g = slash == std::string::npos ? "" : p.substr(0, slash);
+    std::string g = slash == std::string::npos ? "" : p.substr(0, slash);
     if (absolute || parent_base_dir.empty()) return g;
     if (g.empty()) return parent_base_dir;
     return parent_base_dir + "/" + g;
@@ -141,7 +141,7 @@ struct Element {
     if (dummy) return std::string(kDummyConfig);
     if (is_group) return GroupPath() + "/" + Name().value_or("null");
     const bool absolute = path.starts_with('/');
-    const std::string p = StripLeadingSlash(path);
+    std::string p = StripLeadingSlash(path);
     if (absolute || parent_base_dir.empty()) return p;
     return parent_base_dir + "/" + p;
   }
@@ -729,6 +729,7 @@ std::string ResolveDefaultsInterpolation(
   out += text.substr(last);
   if (out.find("${") != std::string::npos) {
     std::vector<std::string> keys;
+    keys.reserve(known.size());
     for (const auto& entry : known) keys.push_back(entry.first);
     if (keys.empty()) {
       throw ConfigError(

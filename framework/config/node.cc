@@ -511,17 +511,20 @@ ConfigNode& ConfigNode::SetPath(std::string_view dotted, ConfigNode value) {
             LocationSuffix(node->source_)));
       }
       if (index == node->size()) {
-        node->Append(last ? std::move(value) : EmptyMap());
+        if (last) {
+          node->Append(std::move(value));
+          return node->container_->items.back();
+        }
+        node->Append(EmptyMap());
         node = &node->container_->items.back();
       } else {
         node = &node->container_->items[index];
         if (last) {
           node->Assign(std::move(value));
-        } else if (node->IsNull()) {
-          node->Assign(EmptyMap());
+          return *node;
         }
+        if (node->IsNull()) node->Assign(EmptyMap());
       }
-      if (last) return *node;
       continue;
     }
     if (!node->IsMap() && !node->IsNull()) {

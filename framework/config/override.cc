@@ -380,7 +380,7 @@ std::string FormatString(const ConfigNode& node, bool top_level) {
   for (size_t i = 0; i + 1 < text.size(); ++i) {
     if (text[i] == '$' && text[i + 1] == '{' &&
         MatchInterpolation(text, i) == 0) {
-      const std::string escaped = EscapeDictKey(text);
+      std::string escaped = EscapeDictKey(text);
       const std::optional<ConfigNode> back = TryParseStandaloneValue(escaped);
       if (back && back->type() == node.type() && back->text() == text) {
         return escaped;

@@ -4,6 +4,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <cstddef>
 #include <utility>
 
@@ -64,7 +65,7 @@ std::vector<Override> ConfigParams(const ConfigNode& root) {
                                  ? value.text()
                                  : FormatOverrideValue(value);
     try {
-      params.push_back(ParseOverride(key + "=" + text));
+      params.push_back(ParseOverride(fmt::format("{}={}", key, text)));
     } catch (const ConfigError& e) {
       throw ConfigError(fmt::format("In hydra.sweeper.params: {}", e.what()));
     }
@@ -100,7 +101,8 @@ std::vector<std::string> DimensionValues(const Override& o,
   const std::string key = KeyElement(o);
   std::vector<std::string> out;
   out.reserve(values.size());
-  for (const std::string& v : values) out.push_back(key + "=" + v);
+  for (const std::string& v : values)
+    out.push_back(fmt::format("{}={}", key, v));
   return out;
 }
 
@@ -119,15 +121,15 @@ std::vector<std::vector<std::string>> ExpandSweep(
   for (const Override& o : overrides) {
     std::vector<std::string> values = DimensionValues(o, repo);
     const std::string key = KeyElement(o);
-    bool replaced = false;
-    for (auto& [existing, existing_values] : dimensions) {
-      if (existing == key) {
-        existing_values = std::move(values);
-        replaced = true;
-        break;
-      }
+    const auto existing =
+        std::find_if(dimensions.begin(), dimensions.end(), [&](const auto& d) {
+          return d.first == key;
+        });
+    if (existing != dimensions.end()) {
+      existing->second = std::move(values);
+    } else {
+      dimensions.emplace_back(key, std::move(values));
     }
-    if (!replaced) dimensions.emplace_back(key, std::move(values));
   }
 
   size_t total = 1;

@@ -93,11 +93,11 @@ int64_t ConstructInt(std::string_view text) {
   if (value == "0") {
     magnitude = 0;
   } else if (value.rfind("0b", 0) == 0) {
-    magnitude = ParseUnsigned(std::string_view(value).substr(2), 2, text);
+    magnitude = ParseUnsigned(std::string_view{value}.substr(2), 2, text);
   } else if (value.rfind("0x", 0) == 0) {
-    magnitude = ParseUnsigned(std::string_view(value).substr(2), 16, text);
+    magnitude = ParseUnsigned(std::string_view{value}.substr(2), 16, text);
   } else if (!value.empty() && value[0] == '0') {
-    magnitude = ParseUnsigned(std::string_view(value).substr(1), 8, text);
+    magnitude = ParseUnsigned(std::string_view{value}.substr(1), 8, text);
   } else if (value.find(':') != std::string::npos) {
     // Sexagesimal: 1:20 = 80.
     uint64_t base = 1;
@@ -106,7 +106,7 @@ int64_t ConstructInt(std::string_view text) {
       const size_t colon = value.rfind(':', end - 1);
       const size_t begin = colon == std::string::npos ? 0 : colon + 1;
       const uint64_t part = ParseUnsigned(
-          std::string_view(value).substr(begin, end - begin), 10, text);
+          std::string_view{value}.substr(begin, end - begin), 10, text);
       magnitude += part * base;
       base *= 60;
       if (colon == std::string::npos) break;
@@ -531,7 +531,8 @@ void EmitBlock(const ConfigNode& node,
       // counts bytes): a longer one is written as an explicit `? key`.
       const std::string written = YamlKey(key);
       if (written.size() > kMaxImplicitKeyBytes) {
-        *out += pad + "? " + written + "\n" + pad + ":";
+        out->append(pad).append("? ").append(written).append("\n");
+        out->append(pad).append(":");
       } else {
         *out += pad + written + ":";
       }
@@ -716,18 +717,18 @@ ConfigFile LoadConfigFile(const std::filesystem::path& path) {
   size_t pos = 0;
   while (pos <= text.size()) {
     const size_t end = text.find('\n', pos);
-    const std::string line = Trim(std::string_view(text).substr(
+    const std::string line = Trim(std::string_view{text}.substr(
         pos, end == std::string::npos ? std::string::npos : end - pos));
     if (!line.empty()) {
       if (line[0] != '#') break;
-      const std::string comment = Trim(std::string_view(line).substr(1));
+      const std::string comment = Trim(std::string_view{line}.substr(1));
       if (!comment.empty() && comment[0] == '@') {
         const std::string directive = comment.substr(1);
         const size_t space = directive.find_first_of(" \t");
         if (space != std::string::npos) {
           const std::string key = directive.substr(0, space);
           const std::string value =
-              Trim(std::string_view(directive).substr(space));
+              Trim(std::string_view{directive}.substr(space));
           if (key == "package" && !value.empty()) {
             file.package = value;
             file.has_package_directive = true;

@@ -73,6 +73,9 @@ class CheckThrower {
   }
   CheckThrower(const CheckThrower&) = delete;
   CheckThrower& operator=(const CheckThrower&) = delete;
+  // Throwing is this destructor's job (noexcept(false)): the message is
+  // complete only at the end of the full expression that streamed into it.
+  // NOLINTNEXTLINE(bugprone-exception-escape)
   [[noreturn]] ~CheckThrower() noexcept(false) { throw E(stream_.str()); }
 
   template <typename T>

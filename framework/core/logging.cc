@@ -60,7 +60,7 @@ void Logger::Write(LogLevel level,
   const std::string line =
       fmt::format("[{}][{}][{}] - {}\n",
                   LogTimestamp(),
-                  logger.empty() ? std::string_view(state.name) : logger,
+                  logger.empty() ? std::string_view{state.name} : logger,
                   ToString(level),
                   message);
   if (level >= state.console_level) {

@@ -135,7 +135,7 @@ int RunProcess(const ProcessSpec& spec) {
 
 std::filesystem::path CurrentExecutable() {
   std::error_code ec;
-  const std::filesystem::path path =
+  std::filesystem::path path =
       std::filesystem::read_symlink("/proc/self/exe", ec);
   if (ec) {
     throw IoError(

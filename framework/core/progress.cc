@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <unistd.h>
 
@@ -11,7 +12,7 @@ namespace soma {
 std::string FormatDuration(double seconds) {
   if (!(seconds >= 0) || seconds > 1e8) return "?";
   if (seconds < 60) return fmt::format("{:.1f}s", seconds);
-  const auto total = static_cast<int64_t>(seconds + 0.5);
+  const int64_t total = std::llround(seconds);
   const int64_t h = total / 3600, m = (total % 3600) / 60, s = total % 60;
   if (h > 0) return fmt::format("{}h{:02d}m{:02d}s", h, m, s);
   return fmt::format("{}m{:02d}s", m, s);

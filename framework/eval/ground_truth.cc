@@ -13,7 +13,7 @@ namespace soma {
 namespace fs = std::filesystem;
 
 std::string ClassOfColumn(const std::string& label) {
-  const std::string canonical = CanonicalMarkerLabel(label);
+  std::string canonical = CanonicalMarkerLabel(label);
   if (canonical.empty() || canonical[0] == '*') return std::string(kNullLabel);
   return canonical;
 }

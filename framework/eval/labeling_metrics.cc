@@ -70,7 +70,8 @@ std::vector<LabelPair> MatchFrameLabels(
   std::vector<int> rec_present;
   rec_present.reserve(rec_points.cols());
   for (Eigen::Index j = 0; j < rec_points.cols(); ++j) {
-    if (!IsMissing(rec_points.col(j))) rec_present.push_back(int(j));
+    if (!IsMissing(rec_points.col(j)))
+      rec_present.push_back(static_cast<int>(j));
   }
   std::vector<LabelPair> pairs;
   for (Eigen::Index i = 0; i < gt_points.cols(); ++i) {
@@ -129,25 +130,28 @@ LabelingMetrics ComputeLabelingMetrics(const std::vector<LabelPair>& pairs) {
   }
   LabelingMetrics m;
   m.num_pairs = static_cast<int64_t>(pairs.size());
-  m.accuracy = double(correct) / double(m.num_pairs);
+  m.accuracy = static_cast<double>(correct) / static_cast<double>(m.num_pairs);
   for (size_t k = 0; k < c; ++k) {
     ClassReport r;
     r.label = labels[k];
     r.support = support[k];
     r.predicted = predicted[k];
-    r.precision = predicted[k] > 0 ? double(tp[k]) / predicted[k] : 0.0;
-    r.recall = support[k] > 0 ? double(tp[k]) / support[k] : 0.0;
+    r.precision =
+        predicted[k] > 0 ? static_cast<double>(tp[k]) / predicted[k] : 0.0;
+    r.recall = support[k] > 0 ? static_cast<double>(tp[k]) / support[k] : 0.0;
     // sklearn: F1 = 2 tp / (2 tp + fp + fn), 0 when undefined.
     const int64_t denom = support[k] + predicted[k];
-    r.f1 = denom > 0 ? 2.0 * double(tp[k]) / double(denom) : 0.0;
+    r.f1 = denom > 0
+               ? 2.0 * static_cast<double>(tp[k]) / static_cast<double>(denom)
+               : 0.0;
     m.precision += r.precision;
     m.recall += r.recall;
     m.f1 += r.f1;
     m.classes.push_back(std::move(r));
   }
-  m.precision /= double(c);
-  m.recall /= double(c);
-  m.f1 /= double(c);
+  m.precision /= static_cast<double>(c);
+  m.recall /= static_cast<double>(c);
+  m.f1 /= static_cast<double>(c);
   return m;
 }
 
@@ -175,10 +179,10 @@ Summary Summarize(const std::vector<double>& values) {
   }
   double sum = 0.0;
   for (double x : v) sum += x;
-  s.mean = sum / double(v.size());
+  s.mean = sum / static_cast<double>(v.size());
   double ss = 0.0;
   for (double x : v) ss += (x - s.mean) * (x - s.mean);
-  s.std = std::sqrt(ss / double(v.size()));
+  s.std = std::sqrt(ss / static_cast<double>(v.size()));
   std::sort(v.begin(), v.end());
   const size_t n = v.size();
   s.median = n % 2 == 1 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
@@ -278,8 +282,10 @@ void WriteConfusionMatrixPng(const ConfusionMatrix& matrix,
                    matrix.labels[i],
                    kBlack);
     for (int j = 0; j < n; ++j) {
-      const double f =
-          row_total > 0 ? double(matrix.counts[i][j]) / double(row_total) : 0;
+      const double f = row_total > 0
+                           ? static_cast<double>(matrix.counts[i][j]) /
+                                 static_cast<double>(row_total)
+                           : 0;
       const uint8_t v = static_cast<uint8_t>(std::lround(255.0 * (1.0 - f)));
       const Rgb color = i == j ? Rgb{v, v, 255} : Rgb{255, v, v};
       image.FillRect(margin + j * cell,

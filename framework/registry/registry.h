@@ -57,7 +57,7 @@ class BuildContext {
 
   // Used by Instantiate().
   void SetChild(std::string key, std::any object, std::string path) {
-    children_[key] = Entry{std::move(object), std::move(path)};
+    children_[std::move(key)] = Entry{std::move(object), std::move(path)};
   }
   void ClearChildren() { children_.clear(); }
 

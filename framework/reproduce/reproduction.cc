@@ -223,7 +223,7 @@ SlurmSubmission SubmitModels(const ReproductionPlan& plan,
                           {chain.string()}});
   }
   // Throws with sbatch's message; the ledger is untouched then.
-  const SlurmSubmission submission = SubmitSlurmArray(slurm, spec);
+  SlurmSubmission submission = SubmitSlurmArray(slurm, spec);
   {
     LedgerLock lock(plan.dir);
     Ledger ledger = Ledger::Load(plan.dir);
@@ -601,6 +601,7 @@ ReproductionRun RunReproduction(
     }
     model_timers.erase(i);
     std::vector<double> running_elapsed_s;
+    running_elapsed_s.reserve(model_timers.size());
     for (const auto& [model, timer] : model_timers) {
       running_elapsed_s.push_back(timer.ElapsedSeconds());
     }
@@ -871,6 +872,7 @@ std::vector<std::string> TrainingMachines(const ReproductionPlan& plan) {
     return a.second > b.second;
   });
   std::vector<std::string> machines;
+  machines.reserve(sorted.size());
   for (const auto& [machine, n] : sorted) {
     machines.push_back(
         fmt::format("{}: {} model{}", machine, n, n == 1 ? "" : "s"));

@@ -55,6 +55,7 @@
 #include "framework/core/progress.h"
 #include "framework/core/timer.h"
 #include "framework/eval/calibration.h"
+#include "framework/eval/tracklet_vote.h"
 #include "framework/io/c3d.h"
 #include "framework/io/mocap_dataset.h"
 #include "framework/model/inference.h"
@@ -120,34 +121,21 @@ PackedPoints Pack(const C3dData& c3d) {
   return packed;
 }
 
-/// REFERENCE 5.5: each input column gets its most frequent prediction over
-/// the frames where it has a point (null votes count; first max on ties,
-/// i.e. the smallest id). Returns the per-point labels of the packed layout.
-at::Tensor TrackletLabels(const at::Tensor& predicted,
-                          const PackedPoints& packed,
-                          int num_columns,
-                          int64_t num_labels) {
-  std::vector<std::vector<int64_t>> votes(
-      num_columns, std::vector<int64_t>(num_labels + 1, 0));
-  auto pred = predicted.accessor<int64_t, 2>();
-  for (int t = 0; t < packed.num_frames; ++t) {
-    for (size_t p = 0; p < packed.columns[t].size(); ++p) {
-      ++votes[packed.columns[t][p]][pred[t][p]];
-    }
-  }
-  std::vector<int64_t> column_label(num_columns, num_labels);
-  for (int k = 0; k < num_columns; ++k) {
-    const auto& v = votes[k];
-    column_label[k] = std::max_element(v.begin(), v.end()) - v.begin();
-  }
-  at::Tensor out = at::full_like(predicted, num_labels);
-  auto o = out.accessor<int64_t, 2>();
-  for (int t = 0; t < packed.num_frames; ++t) {
-    for (size_t p = 0; p < packed.columns[t].size(); ++p) {
-      o[t][p] = column_label[packed.columns[t][p]];
-    }
-  }
-  return out;
+/// REFERENCE 5.5 (TrackletLabels, eval/tracklet_vote.h): each input column
+/// gets its most frequent prediction. `predicted` is T x P (int64); returns
+/// the per-point labels of the packed layout, T x P.
+at::Tensor TrackletLabelsOf(const at::Tensor& predicted,
+                            const PackedPoints& packed,
+                            int num_columns,
+                            int64_t num_labels) {
+  const at::Tensor contiguous = predicted.contiguous();
+  const std::vector<int64_t> labels = TrackletLabels(
+      {contiguous.data_ptr<int64_t>(), static_cast<size_t>(contiguous.numel())},
+      contiguous.size(1),
+      packed.columns,
+      num_columns,
+      num_labels);
+  return at::tensor(labels, at::kLong).reshape(contiguous.sizes());
 }
 
 class LabelTask : public Task {
@@ -230,7 +218,7 @@ class LabelTask : public Task {
     const at::Tensor valid = points.abs().sum(-1) > 0;
     if (options_.tracklet) {
       label_ids = ResolveDuplicateLabels(
-          TrackletLabels(predicted_ids, packed, c3d.num_points, num_labels),
+          TrackletLabelsOf(predicted_ids, packed, c3d.num_points, num_labels),
           valid,
           num_labels);
     }

@@ -22,7 +22,6 @@
 // SOMA_SOURCE_DIR / SOMA_SHARED_DATA).
 #include "framework/body/marker_layout.h"
 #include "framework/body/procedural_body.h"
-#include "framework/framework.h"
 #include "framework/io/c3d.h"
 #include "framework/model/labeler.h"
 #include "framework/model/torch_utils.h"
@@ -37,6 +36,7 @@
 
 #include <benchmark/benchmark.h>
 
+#include "tests/bench/registrations.h"
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -70,7 +70,7 @@ struct Take {
 
 const Take& CorruptedTake() {
   static const Take* const kTake = [] {
-    InitFramework();  // the model registry, for the checkpoint
+    bench::RegisterComponents();  // the model registry, for the checkpoint
     auto* take = new Take;
     const fs::path checkpoint = SourceDir() / "models/cmu41/model.pt";
     take->labels = ReadCheckpointInfo(checkpoint).labels;

@@ -8,12 +8,12 @@
 #include "framework/body/procedural_body.h"
 #include "framework/config/yaml_io.h"
 #include "framework/core/random.h"
-#include "framework/framework.h"
 #include "framework/io/mocap_dataset.h"
 #include "framework/synth/synthesizer.h"
 
 #include <benchmark/benchmark.h>
 
+#include "tests/bench/registrations.h"
 #include <filesystem>
 #include <future>
 #include <string>
@@ -57,7 +57,7 @@ std::vector<PoseSequence> RandomMotions() {
 }
 
 Synthesizer MakeSynthesizer(const char* noise_yaml, int ring) {
-  InitFramework();
+  bench::RegisterComponents();
   BuildContext ctx;
   SynthesisOptions options;
   options.marker_ring = ring;

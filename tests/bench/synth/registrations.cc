@@ -1,0 +1,24 @@
+// soma_bench_synth_*: the registrations InitFramework() makes for the modules
+// these executables link (body, motion, synth), in its order.
+#include "tests/bench/registrations.h"
+
+#include "framework/body/body_source.h"
+#include "framework/motion/motion_source.h"
+#include "framework/registry/registry.h"
+#include "framework/synth/register.h"
+
+#include <mutex>
+
+namespace soma::bench {
+
+void RegisterComponents() {
+  static std::once_flag once;
+  std::call_once(once, [] {
+    RegisterBodySources();
+    RegisterMotionSources();
+    RegisterSynthComponents();
+    FreezeRegistries();
+  });
+}
+
+}  // namespace soma::bench
