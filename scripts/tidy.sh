@@ -204,14 +204,17 @@ export SOMA_TIDY_BUILD="$build" SOMA_TIDY_OUT="$out"
 # <cpu s> <file>" appended to <out>/results (cpu: user + system, which on a
 # loaded machine says more than the wall time).
 check_one() {
-  local file="$1" log rc=0
+  local file="$1" log rc=0 wall user sys
   log="$SOMA_TIDY_OUT/${file//\//__}"
-  /usr/bin/time -f '%e %U %S' -o "$log.time" \
-    clang-tidy -p "$SOMA_TIDY_BUILD" --quiet "$file" >"$log.log" 2>&1 || rc=$?
-  # (time writes "Command exited with non-zero status N" first on failure)
-  read -r wall user sys < <(tail -n 1 "$log.time")
-  printf '%d %s %.1f %s\n' "$rc" "$wall" "$(echo "$user + $sys" | bc)" "$file" \
-    >>"$SOMA_TIDY_OUT/results"
+  # bash's own `time` (no /usr/bin/time or bc on a minimal Debian): its
+  # report is the only thing the group writes to stderr.
+  {
+    TIMEFORMAT='%R %U %S'
+    time clang-tidy -p "$SOMA_TIDY_BUILD" --quiet "$file" >"$log.log" 2>&1
+  } 2>"$log.time" || rc=$?
+  read -r wall user sys <"$log.time"
+  awk -v rc="$rc" -v wall="$wall" -v user="$user" -v sys="$sys" -v file="$file" \
+    'BEGIN { printf "%d %s %.1f %s\n", rc, wall, user + sys, file }' >>"$SOMA_TIDY_OUT/results"
 }
 export -f check_one
 
