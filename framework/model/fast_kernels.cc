@@ -557,6 +557,38 @@ void SinkhornScalingAvx512(const double* kernel,
   }
 }
 
+/// `acc[r][c] = sum_d a[r * lda + d] * bt[d * ldbt + 16 c + lane]` over
+/// d < dh: R rows of `a` times the transposed operand's P 16-lane panels,
+/// accumulated in registers (the product both attention tiles start with).
+template <int R, int P>
+inline __attribute__((always_inline)) void RowsTimesPanels(
+    const float* a,
+    int64_t lda,
+    const float* bt,
+    int64_t ldbt,
+    int64_t dh,
+    __m512 (&acc)[R][P]) {
+#pragma GCC unroll 8
+  for (int r = 0; r < R; ++r) {
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c) acc[r][c] = _mm512_setzero_ps();
+  }
+  for (int64_t kk = 0; kk < dh; ++kk) {
+    __m512 wv[P];
+#pragma GCC unroll 3
+    for (int c = 0; c < P; ++c)
+      wv[c] = _mm512_loadu_ps(bt + kk * ldbt + 16 * c);
+#pragma GCC unroll 8
+    for (int r = 0; r < R; ++r) {
+      const __m512 xb = _mm512_set1_ps(a[r * lda + kk]);
+#pragma GCC unroll 3
+      for (int c = 0; c < P; ++c) {
+        acc[r][c] = _mm512_fmadd_ps(xb, wv[c], acc[r][c]);
+      }
+    }
+  }
+}
+
 /// R query rows of one attention head, n <= 16 P keys: the scores
 /// `scale * q k^T` accumulated in registers (k read transposed, `kt[d * ldkt
 /// + j]`), then each row's softmax in registers, stored to `p`.
@@ -571,25 +603,7 @@ void ProbsTile(const float* q,
                float* p,
                int64_t ldp) {
   __m512 acc[R][P];
-#pragma GCC unroll 8
-  for (int r = 0; r < R; ++r) {
-#pragma GCC unroll 3
-    for (int c = 0; c < P; ++c) acc[r][c] = _mm512_setzero_ps();
-  }
-  for (int64_t kk = 0; kk < dh; ++kk) {
-    __m512 wv[P];
-#pragma GCC unroll 3
-    for (int c = 0; c < P; ++c)
-      wv[c] = _mm512_loadu_ps(kt + kk * ldkt + 16 * c);
-#pragma GCC unroll 8
-    for (int r = 0; r < R; ++r) {
-      const __m512 xb = _mm512_set1_ps(q[r * ldq + kk]);
-#pragma GCC unroll 3
-      for (int c = 0; c < P; ++c) {
-        acc[r][c] = _mm512_fmadd_ps(xb, wv[c], acc[r][c]);
-      }
-    }
-  }
+  RowsTimesPanels<R, P>(q, ldq, kt, ldkt, dh, acc);
   __mmask16 mask[P];
 #pragma GCC unroll 3
   for (int c = 0; c < P; ++c) mask[c] = LaneMask(n - 16 * c);
@@ -634,25 +648,7 @@ void ScoresGradTile(const float* dout,
                     float* ds,
                     int64_t lds) {
   __m512 acc[R][P];
-#pragma GCC unroll 8
-  for (int r = 0; r < R; ++r) {
-#pragma GCC unroll 3
-    for (int c = 0; c < P; ++c) acc[r][c] = _mm512_setzero_ps();
-  }
-  for (int64_t kk = 0; kk < dh; ++kk) {
-    __m512 wv[P];
-#pragma GCC unroll 3
-    for (int c = 0; c < P; ++c)
-      wv[c] = _mm512_loadu_ps(vt + kk * ldvt + 16 * c);
-#pragma GCC unroll 8
-    for (int r = 0; r < R; ++r) {
-      const __m512 xb = _mm512_set1_ps(dout[r * ldo + kk]);
-#pragma GCC unroll 3
-      for (int c = 0; c < P; ++c) {
-        acc[r][c] = _mm512_fmadd_ps(xb, wv[c], acc[r][c]);
-      }
-    }
-  }
+  RowsTimesPanels<R, P>(dout, ldo, vt, ldvt, dh, acc);
   __mmask16 mask[P];
 #pragma GCC unroll 3
   for (int c = 0; c < P; ++c) mask[c] = LaneMask(n - 16 * c);
