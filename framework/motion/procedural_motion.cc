@@ -239,6 +239,78 @@ std::vector<Frame> CrouchWalk(const Clip& clip) {
   return frames;
 }
 
+/// Walking low on hands and feet (HDM05's four-legged walks, animal
+/// imitations, low martial-arts and playground movement): each leg swings
+/// between a front pose (thigh raised to about the pelvis' height, knee near
+/// 90 degrees, the foot planted ahead) and a rear pose (thigh down, knee
+/// deeply flexed and dropped towards the floor, the foot behind), so hip and
+/// knee flexion move in opposite directions, unlike upright or crouched
+/// gait. The trunk is pitched 35-65 degrees and the arms reach down to the
+/// floor, each stepping with the opposite leg; the pelvis stays 0.35-0.6 m
+/// above the floor. crouch_walk keeps the hands off the floor and its knees
+/// bend with the hips; crawl kneels on the floor.
+std::vector<Frame> BearWalk(const Clip& clip) {
+  const double speed = clip.U(0.1, 0.7);      // m/s
+  const double step_freq = clip.U(0.4, 0.9);  // cycles/s
+  const double pitch = clip.U(0, 10) * kDeg;  // pelvis forward
+  const double lean = clip.U(45, 75) * kDeg;  // trunk, total
+  // Thigh angles in the world (from straight down, forward > 0) and knee
+  // flexion of the front and rear poses: the rear thigh still points
+  // forward-down, so a 120-135 degree knee puts the foot behind on its toes
+  // and the knee near the floor. Pitching the pelvis forward turns the legs
+  // back, so the hip flexes by the thigh angle plus the pitch (<= 120).
+  const double thigh_front = clip.U(95, 110) * kDeg;
+  const double thigh_rear = clip.U(45, 65) * kDeg;
+  const double knee_front = clip.U(75, 95) * kDeg;
+  const double knee_rear = clip.U(120, 135) * kDeg;
+  const double hip_mid = 0.5 * (thigh_front + thigh_rear) + pitch;
+  const double hip_amp = 0.5 * (thigh_front - thigh_rear);
+  const double knee_mid = 0.5 * (knee_front + knee_rear);
+  const double knee_amp = 0.5 * (knee_rear - knee_front);
+  const double ankle_base = clip.U(-20, 10) * kDeg;  // < 0: dorsiflexion
+  const double abduction = clip.U(5, 30) * kDeg;     // knees apart
+  // The arm swings forward from hanging by about the trunk's pitch to point
+  // at the floor; beyond it the hands land ahead of the shoulders.
+  const double reach = lean + clip.U(-10, 15) * kDeg;
+  const double arm_amp = clip.U(10, 30) * kDeg;
+  const double elbow = clip.U(0, 35) * kDeg;
+  const double wrist = -clip.U(20, 60) * kDeg;  // hand flat on the floor
+  const double heading = clip.U(-M_PI, M_PI);
+  const double phase0 = clip.U(0, kTwoPi);
+  std::vector<Frame> frames(clip.num_frames);
+  for (int i = 0; i < clip.num_frames; ++i) {
+    const double t = clip.Time(i);
+    const double phase = phase0 + kTwoPi * step_freq * t;
+    Frame& f = frames[i];
+    AnatomicalPose& p = f.angles;
+    for (int side = 0; side < 2; ++side) {
+      const double ph = phase + side * M_PI;
+      const int hip = side == 0 ? kLeftHip : kRightHip;
+      const int knee = side == 0 ? kLeftKnee : kRightKnee;
+      const int ankle = side == 0 ? kLeftAnkle : kRightAnkle;
+      const int shoulder = side == 0 ? kLeftShoulder : kRightShoulder;
+      const int elbow_joint = side == 0 ? kLeftElbow : kRightElbow;
+      const int wrist_joint = side == 0 ? kLeftWrist : kRightWrist;
+      p[hip] = {hip_mid + hip_amp * std::cos(ph), abduction, 0};
+      p[knee].flexion = knee_mid - knee_amp * std::cos(ph);
+      p[ankle].flexion = ankle_base + 15 * kDeg * std::cos(ph);
+      // The arm steps with the opposite leg (phase + pi).
+      // Forward swing s from hanging (0, -80) towards forward (80, -10), as
+      // in crouch_walk.
+      const double swing = reach + arm_amp * std::cos(ph + M_PI);
+      p[shoulder] = {swing, -80 * kDeg + swing * 70.0 / 80.0, 0};
+      p[elbow_joint].flexion = elbow;
+      p[wrist_joint].flexion = wrist;
+    }
+    SetSpine(p, std::max(0.0, lean - pitch), 0, 5 * kDeg * std::cos(phase));
+    p[kHead].flexion = -0.6 * lean;  // looking ahead
+    f.root = Yaw(heading) * AxisRotation(pitch, Eigen::Vector3d::UnitX());
+    const Eigen::Vector3d forward = f.root * Eigen::Vector3d(0, -1, 0);
+    f.xy = forward.head<2>() * speed * t;
+  }
+  return frames;
+}
+
 std::vector<Frame> Walk(const Clip& clip) { return Gait(clip, false); }
 std::vector<Frame> Run(const Clip& clip) { return Gait(clip, true); }
 
@@ -814,6 +886,7 @@ const std::vector<std::pair<std::string, Generator>>& Generators() {
       {"walk", Walk},
       {"run", Run},
       {"crouch_walk", CrouchWalk},
+      {"bear_walk", BearWalk},
       {"jump", Jump},
       {"squat", Squat},
       {"kick", Kick},

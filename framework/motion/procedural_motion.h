@@ -22,9 +22,9 @@
 
 namespace soma {
 
-/// Names of the motion types, in a fixed order: walk, run, crouch_walk, jump,
-/// squat, kick, throw, reach, turn, sit, lie_down, crawl, kneel, cartwheel,
-/// handstand, flip, martial_arts, random_pose.
+/// Names of the motion types, in a fixed order: walk, run, crouch_walk,
+/// bear_walk, jump, squat, kick, throw, reach, turn, sit, lie_down, crawl,
+/// kneel, cartwheel, handstand, flip, martial_arts, random_pose.
 const std::vector<std::string>& ProceduralMotionTypes();
 
 struct ProceduralMotionOptions {

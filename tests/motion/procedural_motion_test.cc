@@ -191,6 +191,48 @@ double LeftKneeFlexionDeg(const BodyPose& pose) {
   return 180.0 - std::acos(std::clamp(cosine, -1.0, 1.0)) / kDeg;
 }
 
+struct LowPoseStats {
+  double pelvis = 0;    // mean pelvis height, m
+  double hand = 0;      // mean height of the lower wrist, m
+  double knee_max = 0;  // largest left knee flexion, degrees
+};
+
+LowPoseStats MeasureLowPose(const PoseSequence& seq) {
+  LowPoseStats stats;
+  for (const BodyPose& pose : seq.frames) {
+    stats.pelvis += JointPosition(pose, kPelvis).z();
+    stats.hand += std::min(JointPosition(pose, kLeftWrist).z(),
+                           JointPosition(pose, kRightWrist).z());
+    stats.knee_max = std::max(stats.knee_max, LeftKneeFlexionDeg(pose));
+  }
+  stats.pelvis /= seq.num_frames();
+  stats.hand /= seq.num_frames();
+  return stats;
+}
+
+// The HDM05 take's frames 2200-3200 walk on hands and feet with the pelvis
+// ~0.4-0.55 m up and one knee near the floor; the labeller lost leg markers
+// there (results/synthetic_world).
+TEST(ProceduralMotion, BearWalkIsLowOnHandsAndFeet) {
+  for (int seed = 0; seed < 10; ++seed) {
+    Rng walk_rng(seed), bear_rng(seed);
+    const LowPoseStats walk =
+        MeasureLowPose(GenerateProceduralMotion("walk", Body(), {}, walk_rng));
+    const PoseSequence seq =
+        GenerateProceduralMotion("bear_walk", Body(), {}, bear_rng);
+    const LowPoseStats bear = MeasureLowPose(seq);
+    // Seeds 0-9 measured: pelvis 0.56-0.65 m, lower wrist 0.37-0.53 m.
+    EXPECT_LT(bear.pelvis, 0.7 * walk.pelvis) << "seed " << seed;
+    EXPECT_LT(bear.hand, 0.7 * walk.hand) << "seed " << seed;
+    EXPECT_GT(bear.knee_max, 110) << "seed " << seed;
+    const double distance =
+        (seq.frames.back().translation - seq.frames.front().translation)
+            .head<2>()
+            .norm();
+    EXPECT_GT(distance, 0.1 * 4.0 * 0.8) << "seed " << seed;
+  }
+}
+
 // CMU 01_01's forward jumps are straight-bodied hops; the labeller flipped
 // them front to back until jumps covered that style (results/synthetic_world).
 TEST(ProceduralMotion, JumpsIncludeStraightLeggedFlightsAndRepeatedHops) {
