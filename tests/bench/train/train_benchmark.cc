@@ -14,7 +14,6 @@
 // Rows for 1 and 2 intra-op threads.
 #include "framework/config/yaml_io.h"
 #include "framework/core/build_info.h"
-#include "framework/framework.h"
 #include "framework/model/fast_train.h"
 #include "framework/model/labeler.h"
 #include "framework/model/loss.h"
@@ -24,6 +23,7 @@
 #include <benchmark/benchmark.h>
 #include <torch/torch.h>
 
+#include "tests/bench/registrations.h"
 #include <string>
 #include <sys/resource.h>
 
@@ -73,7 +73,7 @@ double PeakRssMib() {
 void BM_TrainStep(benchmark::State& state,
                   const std::string& name,
                   const std::string& engine) {
-  InitFramework();  // registries (BuildLabeler); once per process
+  bench::RegisterComponents();  // registries (BuildLabeler); once per process
   SetTorchThreads(static_cast<int>(state.range(0)));
   const Scale scale = LoadScale(name);
   torch::manual_seed(0);
