@@ -31,15 +31,21 @@
 # Why CI runs a subset. Measured 2026-12-04 on this 2-core AMD EPYC while
 # other builds and fuzzers held it (load average 6-9), 2 jobs: 52 library
 # files took 286 CPU s (5.5 s each on average, at most 17 s:
-# body/makehuman_body.cc), 17 min of wall time. The 224 files without
-# libtorch would so take ~20 CPU min (~10 min on an idle machine: it would fit
-# CI's budget), but most modules still have findings. CI checks the
-# directories brought clean so far (SOMA_TIDY_CI_DIRS): `--ci` ran 57 files,
-# 0 findings, 290 CPU s, 328 s of wall time (load average 2-3), so that CI
-# stays green and the clean code stays clean; a module
-# joins the list once `scripts/tidy.sh` reports nothing in it. Files changed
-# on a branch are not added automatically: a one-line change would then fail
-# CI on older findings in the same file (run `scripts/tidy.sh main` by hand).
+# body/makehuman_body.cc), 17 min of wall time. CI checks the directories
+# brought clean so far (SOMA_TIDY_CI_DIRS), so that CI stays green and the
+# clean code stays clean; a module joins the list once `scripts/tidy.sh`
+# reports nothing in it and CI's time allows. Measured 2026-12-05, same
+# machine, other helpers' builds and fuzzers holding it (load average 5-8):
+# `--ci` ran 89 files, 0 findings, 640 CPU s, 1021 s of wall time (the 60
+# files of the list before motion, synth, solve and model joined took 395 of
+# those CPU s; alone they took ~130 s of wall time on an idle machine, so the
+# list now needs ~3.5 min idle). The plain files of train, stream and tasks
+# (28 files) are clean too (0 findings when `--ci` also listed them: 117
+# files, 791 CPU s, 1711 s of wall time at load 6-7) but are left out of CI
+# for time: they took 201 CPU s of that run (tasks alone 135).
+# Files changed on a branch are not added automatically: a one-line change
+# would then fail CI on older findings in the same file (run
+# `scripts/tidy.sh main` by hand).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -67,12 +73,21 @@ SOMA_TIDY_CI_DIRS=(
   framework/eval
   framework/view
   framework/reproduce
+  framework/motion
+  framework/synth
+  framework/solve
+  framework/model
 )
 
 # Files of SOMA_TIDY_CI_DIRS left out of the CI subset (a file being
 # rewritten on a branch, say); an explicit run (all files, or REV) still
-# checks them. None at present: the JSON, ZIP and PNG rewrites landed clean.
-SOMA_TIDY_SKIP=()
+# checks them.
+SOMA_TIDY_SKIP=(
+  # Being rewritten on another branch; one finding today
+  # (bugprone-branch-clone in KernelFor: for R >= 6 the last two kernels are
+  # the same instantiation).
+  framework/model/fast_kernels.cc
+)
 
 ci=0
 with_torch=0

@@ -13,6 +13,7 @@
 #include <fmt/format.h>
 
 #include <algorithm>
+#include <optional>
 #include <set>
 #include <system_error>
 #include <utility>
@@ -60,8 +61,11 @@ std::string PrimaryConfigName(const ComposeRequest& request) {
 }
 
 /// The search path from the primary config (or a CLI `hydra.searchpath=`).
-std::vector<std::string> ReadHydraSearchPath(const ComposeRequest& request,
-                                             const ConfigRepository& repo) {
+/// Sets `*primary_file` to the primary config file if it was read.
+std::vector<std::string> ReadHydraSearchPath(
+    const ComposeRequest& request,
+    const ConfigRepository& repo,
+    std::optional<ConfigFile>* primary_file) {
   std::optional<ConfigNode> searchpath;
   ConfigNode context = ConfigNode::EmptyMap();
   for (const Override& o : request.overrides) {
@@ -74,11 +78,12 @@ std::vector<std::string> ReadHydraSearchPath(const ComposeRequest& request,
   const std::string config_name = PrimaryConfigName(request);
   if (!searchpath.has_value() && !config_name.empty()) {
     if (std::optional<fs::path> file = repo.Find(config_name)) {
-      ConfigFile primary = LoadConfigFile(*file);
-      if (const ConfigNode* sp = primary.content.FindPath("hydra.searchpath")) {
+      *primary_file = LoadConfigFile(*file);
+      const ConfigNode& content = (*primary_file)->content;
+      if (const ConfigNode* sp = content.FindPath("hydra.searchpath")) {
         searchpath = *sp;
       }
-      context = std::move(primary.content);
+      context = content;
     }
   }
   std::vector<std::string> out;
@@ -195,9 +200,14 @@ ComposeResult Compose(const ComposeRequest& request) {
   std::vector<std::string> roots = request.search_path;
   std::vector<std::string> providers(roots.size(), "command-line");
   if (!providers.empty()) providers[0] = "main";
+  // The primary config file, read once: its hydra.searchpath extends the
+  // search path, and the search path's first roots (where it was found)
+  // still find it first.
+  std::optional<ConfigFile> primary_file;
   {
     const ConfigRepository base(request.search_path);
-    for (std::string& entry : ReadHydraSearchPath(request, base)) {
+    for (std::string& entry :
+         ReadHydraSearchPath(request, base, &primary_file)) {
       roots.push_back(std::move(entry));
       providers.push_back("hydra.searchpath");
     }
@@ -226,8 +236,12 @@ ComposeResult Compose(const ComposeRequest& request) {
   const std::string config_name = PrimaryConfigName(request);
   const bool skip_missing =
       request.mode == RunMode::kMultirun && request.allow_sweeps;
-  internal::DefaultsListResult defaults = internal::BuildDefaultsList(
-      repo, request.overrides, config_name, skip_missing);
+  internal::DefaultsListResult defaults =
+      internal::BuildDefaultsList(repo,
+                                  request.overrides,
+                                  config_name,
+                                  skip_missing,
+                                  primary_file ? &*primary_file : nullptr);
 
   // 4. Merge: the hydra defaults first, then the files in defaults order.
   ConfigNode root = HydraDefaults();

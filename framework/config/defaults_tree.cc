@@ -419,20 +419,17 @@ class ConfigLoader {
     if (it != cache_.end()) return it->second.get();
     std::unique_ptr<LoadedConfig> loaded;
     if (std::optional<fs::path> file = repo_.Find(config_path)) {
-      ConfigFile cf = LoadConfigFile(*file);
-      loaded = std::make_unique<LoadedConfig>();
-      loaded->file = file->string();
-      if (cf.has_package_directive) loaded->header = cf.package;
-      loaded->content = std::move(cf.content);
-      if (!loaded->content.IsMap()) loaded->content = ConfigNode::EmptyMap();
-      if (const ConfigNode* defaults = loaded->content.Find("defaults")) {
-        loaded->defaults = ParseDefaultsList(config_path, *defaults);
-        loaded->content.Erase("defaults");
-      }
+      loaded = FromFile(config_path, LoadConfigFile(*file));
     }
     const LoadedConfig* result = loaded.get();
     cache_.emplace(config_path, std::move(loaded));
     return result;
+  }
+
+  /// Makes `file`, already read from the repository, what Load(config_path)
+  /// returns.
+  void Add(const std::string& config_path, ConfigFile file) {
+    cache_[config_path] = FromFile(config_path, std::move(file));
   }
 
   bool Exists(const std::string& config_path) const {
@@ -440,6 +437,20 @@ class ConfigLoader {
   }
 
  private:
+  static std::unique_ptr<LoadedConfig> FromFile(const std::string& config_path,
+                                                ConfigFile cf) {
+    auto loaded = std::make_unique<LoadedConfig>();
+    loaded->file = std::move(cf.path);
+    if (cf.has_package_directive) loaded->header = cf.package;
+    loaded->content = std::move(cf.content);
+    if (!loaded->content.IsMap()) loaded->content = ConfigNode::EmptyMap();
+    if (const ConfigNode* defaults = loaded->content.Find("defaults")) {
+      loaded->defaults = ParseDefaultsList(config_path, *defaults);
+      loaded->content.Erase("defaults");
+    }
+    return loaded;
+  }
+
   const ConfigRepository& repo_;
   std::map<std::string, std::unique_ptr<LoadedConfig>> cache_;
 };
@@ -1069,7 +1080,8 @@ void CollectChoices(const TreeNode& tree,
 DefaultsListResult BuildDefaultsList(const ConfigRepository& repo,
                                      const std::vector<Override>& overrides,
                                      const std::string& config_name,
-                                     bool skip_missing) {
+                                     bool skip_missing,
+                                     const ConfigFile* primary_file) {
   ConfigLoader loader(repo);
   DefaultsOverrides defaults_overrides(repo, overrides);
   DefaultsTreeBuilder builder(repo, loader, defaults_overrides, skip_missing);
@@ -1081,6 +1093,8 @@ DefaultsListResult BuildDefaultsList(const ConfigRepository& repo,
   } else {
     ValidateConfigPath(config_name);
     tree.node.path = config_name;
+    if (primary_file != nullptr)
+      loader.Add(tree.node.ConfigPath(), *primary_file);
   }
   builder.Expand(tree, /*is_root_config=*/true, /*interpolated_subtree=*/false);
 

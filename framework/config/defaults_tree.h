@@ -9,6 +9,7 @@
 #include "framework/config/config_repository.h"
 #include "framework/config/node.h"
 #include "framework/config/override.h"
+#include "framework/config/yaml_io.h"
 
 #include <optional>
 #include <string>
@@ -46,10 +47,13 @@ struct DefaultsListResult {
 /// being an error (the sweep-level config of a multirun). Throws ConfigError
 /// with Hydra's wording (a config that is not found, an override that
 /// matches nothing, a group listed twice, ...).
+/// `primary_file`, if given, is the primary config already read from `repo`
+/// (Compose reads it first for hydra.searchpath): it is not read again.
 DefaultsListResult BuildDefaultsList(const ConfigRepository& repo,
                                      const std::vector<Override>& overrides,
                                      const std::string& config_name,
-                                     bool skip_missing);
+                                     bool skip_missing,
+                                     const ConfigFile* primary_file = nullptr);
 
 }  // namespace internal
 }  // namespace soma

@@ -746,37 +746,43 @@ double DecimalToDouble(const Decimal& d) {
   return std::strtod(text.c_str(), nullptr);
 }
 
-std::vector<ConfigNode> ExpandRange(const ConfigNode& start,
-                                    const ConfigNode& stop,
-                                    const ConfigNode& step) {
-  std::vector<ConfigNode> values;
-  size_t max_values = kMaxRangeValues;
-  const auto too_many = [&]() {
-    throw FunctionError(fmt::format("range() produces more than {} values{}",
-                                    max_values,
-                                    max_values == kMaxFloatRangeValues
-                                        ? " (the limit of a float range)"
-                                        : ""));
-  };
+/// The number of values of an int range(a, b, s), s != 0, without expanding
+/// it: ceil((b - a) / s) when the range is not empty, exact over all of int64
+/// (b - a is computed in uint64, where it always fits).
+uint64_t IntRangeLength(int64_t a, int64_t b, int64_t s) {
+  if (s > 0 ? a >= b : a <= b) return 0;
+  const uint64_t span =
+      s > 0 ? static_cast<uint64_t>(b) - static_cast<uint64_t>(a)
+            : static_cast<uint64_t>(a) - static_cast<uint64_t>(b);
+  const uint64_t stride =
+      s > 0 ? static_cast<uint64_t>(s) : 0 - static_cast<uint64_t>(s);
+  return span / stride + (span % stride != 0 ? 1 : 0);
+}
+
+/// Checks a range's arguments and length before anything is expanded: a zero
+/// step, a non-finite float start or step, or more values than the limit
+/// (kMaxRangeValues for int ranges, kMaxFloatRangeValues for float ones)
+/// throw, the latter with the number of values. Int lengths are exact. A
+/// float range's length is ceil((stop - start) / step) in double arithmetic
+/// (unbounded for an infinite stop on the step's side), which Hydra's decimal
+/// accumulation (ExpandRange) can end up to one value away from: lengths up
+/// to the limit + 1 pass here and ExpandRange's loop enforces the exact limit
+/// (allocating at most the limit's worth of values).
+void CheckRange(const ConfigNode& start,
+                const ConfigNode& stop,
+                const ConfigNode& step) {
   if (start.IsInt() && stop.IsInt() && step.IsInt()) {
-    const int64_t a = start.AsInt();
-    const int64_t b = stop.AsInt();
     const int64_t s = step.AsInt();
     if (s == 0) throw FunctionError("range() step must not be zero");
-    for (int64_t i = 0;; ++i) {
-      int64_t offset = 0;
-      int64_t v = 0;
-      if (__builtin_mul_overflow(i, s, &offset) ||
-          __builtin_add_overflow(a, offset, &v)) {
-        break;
-      }
-      if (s > 0 ? v >= b : v <= b) break;
-      if (values.size() >= kMaxRangeValues) too_many();
-      values.emplace_back(v);
+    const uint64_t length = IntRangeLength(start.AsInt(), stop.AsInt(), s);
+    if (length > kMaxRangeValues) {
+      throw FunctionError(
+          fmt::format("range() produces {} values, more than the limit of {}",
+                      length,
+                      kMaxRangeValues));
     }
-    return values;
+    return;
   }
-  max_values = kMaxFloatRangeValues;
   const double a = start.AsDouble();
   const double b = stop.AsDouble();
   const double s = step.AsDouble();
@@ -784,8 +790,42 @@ std::vector<ConfigNode> ExpandRange(const ConfigNode& start,
   if (!std::isfinite(a) || !std::isfinite(s) || std::isnan(b)) {
     throw FunctionError("range() start and step must be finite numbers");
   }
+  const double length = std::ceil((b - a) / s);  // +inf if unbounded
+  if (length > static_cast<double>(kMaxFloatRangeValues) + 1.0) {
+    throw FunctionError(fmt::format(
+        "range() produces {} values, more than the limit of {} for a float "
+        "range",
+        std::isfinite(length) ? fmt::format("about {:.15g}", length)
+        : std::isfinite(b)    ? std::string("more than 1e308")
+                              : std::string("unboundedly many"),
+        kMaxFloatRangeValues));
+  }
+}
+
+std::vector<ConfigNode> ExpandRange(const ConfigNode& start,
+                                    const ConfigNode& stop,
+                                    const ConfigNode& step) {
+  CheckRange(start, stop, step);
+  std::vector<ConfigNode> values;
+  if (start.IsInt() && stop.IsInt() && step.IsInt()) {
+    const int64_t a = start.AsInt();
+    const int64_t s = step.AsInt();
+    const uint64_t length = IntRangeLength(a, stop.AsInt(), s);
+    values.reserve(length);
+    // a + i * s in uint64 (wrapping) arithmetic, where i * s alone may not
+    // fit in int64 (range(-2^63, 2^63-1, 2^62)); the sum, which lies between
+    // start and stop, converts back exactly.
+    for (uint64_t i = 0; i < length; ++i) {
+      values.emplace_back(static_cast<int64_t>(static_cast<uint64_t>(a) +
+                                               i * static_cast<uint64_t>(s)));
+    }
+    return values;
+  }
+  const double s = step.AsDouble();
+  const double b = stop.AsDouble();
   // Hydra's FloatRange (see Decimal above); an infinite stop never ends the
-  // range (Decimal('Infinity') compares greater than every finite value).
+  // range (Decimal('Infinity') compares greater than every finite value), and
+  // CheckRange has refused those whose infinite stop lies ahead.
   Decimal current = DecimalFromNode(start);
   const Decimal increment = DecimalFromNode(step);
   const bool stop_finite = std::isfinite(b);
@@ -795,16 +835,12 @@ std::vector<ConfigNode> ExpandRange(const ConfigNode& start,
     const int c = CompareDecimal(current, limit);
     return s > 0 ? c < 0 : c > 0;
   };
-  // Too long: say so now rather than after a million decimal additions
-  // (seconds; a step below the 28-digit resolution never advances). One
-  // rounded step advances by at most twice `step`, so more than 2.5 x the
-  // limit in steps from start to stop means more values than the limit.
-  if (!stop_finite && before_stop()) too_many();
-  if (stop_finite && (b - a) / s > 2.5 * static_cast<double>(max_values)) {
-    too_many();
-  }
   while (before_stop()) {
-    if (values.size() >= max_values) too_many();
+    if (values.size() >= kMaxFloatRangeValues) {
+      throw FunctionError(fmt::format(
+          "range() produces more than {} values, the limit for a float range",
+          kMaxFloatRangeValues));
+    }
     values.emplace_back(DecimalToDouble(current));
     current = AddExact(current, increment);
     RoundToContext(&current);
@@ -1810,8 +1846,8 @@ Parsed OverrideParser::ParseFunction() {
   try {
     Parsed result = EvalFunction(name.text, args);
     if (result.kind == Parsed::Kind::kRange) {
-      // Validate now so that errors name the call.
-      ExpandRange(result.start, result.stop, result.step);
+      // Validate now so that errors name the call (without expanding).
+      CheckRange(result.start, result.stop, result.step);
     }
     return result;
   } catch (const FunctionError& e) {

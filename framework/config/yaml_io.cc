@@ -6,10 +6,13 @@
 #include <fmt/format.h>
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
+#include <array>
 #include <charconv>
 #include <cmath>
 #include <limits>
 #include <regex>
+#include <string_view>
 #include <system_error>
 
 namespace soma {
@@ -19,16 +22,33 @@ namespace {
 // Scalar typing: PyYAML SafeLoader (YAML 1.1) implicit resolvers, plus the
 // float pattern OmegaConf adds (`1e-3`, `1_000.5`), minus timestamps.
 
-const std::regex& BoolRegex() {
-  static const std::regex kRegex(
-      "yes|Yes|YES|no|No|NO|true|True|TRUE|false|False|FALSE|on|On|ON|off|"
-      "Off|OFF");
-  return kRegex;
+// The bool and null resolvers match whole words: compared as strings (a
+// std::regex match of every plain scalar was most of ParseYaml's time).
+bool IsYamlBool(std::string_view text) {
+  static constexpr std::array<std::string_view, 18> kWords = {"yes",
+                                                              "Yes",
+                                                              "YES",
+                                                              "no",
+                                                              "No",
+                                                              "NO",
+                                                              "true",
+                                                              "True",
+                                                              "TRUE",
+                                                              "false",
+                                                              "False",
+                                                              "FALSE",
+                                                              "on",
+                                                              "On",
+                                                              "ON",
+                                                              "off",
+                                                              "Off",
+                                                              "OFF"};
+  return std::find(kWords.begin(), kWords.end(), text) != kWords.end();
 }
 
-const std::regex& NullRegex() {
-  static const std::regex kRegex("~|null|Null|NULL|");
-  return kRegex;
+bool IsYamlNull(std::string_view text) {
+  return text.empty() || text == "~" || text == "null" || text == "Null" ||
+         text == "NULL";
 }
 
 const std::regex& IntRegex() {
@@ -262,7 +282,7 @@ class YamlConverter {
         return WithText(ConfigNode(ConstructFloat(text)), text);
       }
       if (tag == kTagBool) {
-        if (!std::regex_match(text, BoolRegex())) {
+        if (!IsYamlBool(text)) {
           Fail(line, fmt::format("'{}' is not a valid !!bool", text));
         }
         return TypePlainScalar(text);
@@ -571,8 +591,15 @@ bool MatchesOverridePrimitive(const std::string& text) {
   static const std::regex kKeyword(
       "[tT][rR][uU][eE]|[fF][aA][lL][sS][eE]|[nN]["
       "uU][lL][lL]|\\?\\?\\?");
-  return std::regex_match(text, kInt) || std::regex_match(text, kFloat) ||
-         std::regex_match(text, kKeyword);
+  // Each pattern's possible first characters, checked before the regexes.
+  if (text.empty()) return false;
+  constexpr std::string_view kNumberStart = "+-.0123456789iInN";
+  constexpr std::string_view kKeywordStart = "tTfFnN?";
+  const char first = text.front();
+  return (kNumberStart.find(first) != std::string_view::npos &&
+          (std::regex_match(text, kInt) || std::regex_match(text, kFloat))) ||
+         (kKeywordStart.find(first) != std::string_view::npos &&
+          std::regex_match(text, kKeyword));
 }
 
 std::string FlowString(const std::string& value) {
@@ -661,8 +688,8 @@ std::string Trim(std::string_view text) {
 }  // namespace
 
 ConfigNode TypePlainScalar(const std::string& text) {
-  if (std::regex_match(text, NullRegex())) return ConfigNode::Null();
-  if (std::regex_match(text, BoolRegex())) {
+  if (IsYamlNull(text)) return ConfigNode::Null();
+  if (IsYamlBool(text)) {
     const char first = text[0];
     const bool value = first == 'y' || first == 'Y' || first == 't' ||
                        first == 'T' || text == "on" || text == "On" ||

@@ -40,18 +40,16 @@ JointAxes LeftOrCentralAxes(int joint) {
       // Rx(+t) swings the shank backwards (+Y).
       return {x, -y, -z};
     case kLeftAnkle:
-      // Rx(+t) turns the toes (-Y) downwards (plantarflexion); Ry(+t) turns
-      // the sole (-Z) towards -X (medial: inversion).
-      return {x, y, -z};
     case kLeftFoot:
+      // Rx(+t) turns the toes (-Y) downwards (plantarflexion); Ry(+t) turns
+      // the sole (-Z) towards -X (medial: inversion). The foot as the ankle.
       return {x, y, -z};
     case kLeftCollar:
     case kLeftShoulder:
-      // Arm along +X. Rz(-t) swings it towards -Y (forward); Ry(-t) raises
-      // it (+Z); twist about the arm axis.
-      return {-z, -y, -x};
     case kLeftElbow:
-      // Forearm along +X, palm down: flexion brings the hand forwards (-Y).
+      // Arm along +X. Rz(-t) swings it towards -Y (forward); Ry(-t) raises
+      // it (+Z); twist about the arm axis. Forearm along +X, palm down:
+      // elbow flexion brings the hand forwards (-Y).
       return {-z, -y, -x};
     case kLeftWrist:
     case kLeftHand:

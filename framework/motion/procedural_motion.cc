@@ -106,8 +106,9 @@ class Keyframes {
 std::vector<Frame> Sample(const Keyframes& keys, const Clip& clip) {
   std::vector<Frame> frames(clip.num_frames);
   for (int i = 0; i < clip.num_frames; ++i) {
-    frames[i] =
-        keys.At(clip.num_frames > 1 ? i / double(clip.num_frames - 1) : 0.0);
+    frames[i] = keys.At(clip.num_frames > 1
+                            ? i / static_cast<double>(clip.num_frames - 1)
+                            : 0.0);
   }
   return frames;
 }
@@ -320,7 +321,7 @@ std::vector<Frame> Turn(const Clip& clip) {
   const double total = clip.U(0.5, 2.0) * M_PI * (clip.Coin() ? 1 : -1);
   const double heading0 = clip.U(-M_PI, M_PI);
   for (int i = 0; i < clip.num_frames; ++i) {
-    const double w = i / double(std::max(1, clip.num_frames - 1));
+    const double w = i / static_cast<double>(std::max(1, clip.num_frames - 1));
     frames[i].root = Yaw(heading0 + total * Smoothstep(w));
     frames[i].xy *= 0.15;  // mostly in place
   }
@@ -357,7 +358,7 @@ std::vector<Frame> Squat(const Clip& clip) {
   }
   keys.Add(0.0, stand);
   for (int r = 0; r < reps; ++r) {
-    const double t0 = r / double(reps);
+    const double t0 = r / static_cast<double>(reps);
     keys.Add(t0 + 0.15 / reps, stand);
     keys.Add(t0 + 0.5 / reps, down);
     keys.Add(t0 + 0.6 / reps, down);
@@ -417,7 +418,7 @@ std::vector<Frame> Jump(const Clip& clip) {
   Keyframes keys;
   keys.Add(0.0, stand);
   for (int r = 0; r < reps; ++r) {
-    const double t0 = r / double(reps), span = 1.0 / reps;
+    const double t0 = r / static_cast<double>(reps), span = 1.0 / reps;
     const Eigen::Vector2d start = forward * distance * r;
     Frame from = stand, crouch_r = crouch, takeoff_r = takeoff, air_r = air;
     from.xy = crouch_r.xy = start;
@@ -437,7 +438,7 @@ std::vector<Frame> Jump(const Clip& clip) {
   std::vector<Frame> frames = Sample(keys, clip);
   // Ballistic flight between each take-off (0.38) and landing (0.62).
   for (int i = 0; i < clip.num_frames; ++i) {
-    const double t = i / double(std::max(1, clip.num_frames - 1));
+    const double t = i / static_cast<double>(std::max(1, clip.num_frames - 1));
     const double local = std::fmod(t * reps, 1.0);
     const double s = (local - 0.38) / 0.24;
     frames[i].lift = (s > 0 && s < 1) ? 4 * height * s * (1 - s) : 0.0;
@@ -720,8 +721,8 @@ std::vector<Frame> Cartwheel(const Clip& clip) {
   const double distance = clip.U(1.0, 2.0);
   std::vector<Frame> frames(clip.num_frames);
   for (int i = 0; i < clip.num_frames; ++i) {
-    const double w =
-        Smoothstep(i / double(std::max(1, clip.num_frames - 1)) * 1.2 - 0.1);
+    const double w = Smoothstep(
+        i / static_cast<double>(std::max(1, clip.num_frames - 1)) * 1.2 - 0.1);
     Frame& f = frames[i];
     // Rotation in the frontal plane: about the body's forward axis (Y).
     f.root = Yaw(heading) *
@@ -745,7 +746,7 @@ std::vector<Frame> Flip(const Clip& clip) {
   const double height = clip.U(0.5, 0.9);
   std::vector<Frame> frames(clip.num_frames);
   for (int i = 0; i < clip.num_frames; ++i) {
-    const double t = i / double(std::max(1, clip.num_frames - 1));
+    const double t = i / static_cast<double>(std::max(1, clip.num_frames - 1));
     const double s = std::clamp((t - 0.3) / 0.4, 0.0, 1.0);  // flight phase
     Frame& f = frames[i];
     f.root =
@@ -836,7 +837,7 @@ std::vector<Frame> RandomPose(const Clip& clip) {
     }
     f.angles[kPelvis] = {};
     f.root = RandomRotation(*clip.rng);
-    keys.Add(k / double(num_keys - 1), f);
+    keys.Add(k / static_cast<double>(num_keys - 1), f);
   }
   return Sample(keys, clip);
 }

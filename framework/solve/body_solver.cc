@@ -130,6 +130,7 @@ BodySolveResult SolveBody(const BodyModel& body,
   const std::vector<int> picked =
       PickStageIFrames(markers.frames, options.stagei);
   std::vector<Eigen::Matrix3Xd> stagei_frames;
+  stagei_frames.reserve(picked.size());
   for (int f : picked) stagei_frames.push_back(markers.frames[f]);
   result.stagei = SolveStageI(
       body, &model, distances, stagei_frames, prior, options.stagei);

@@ -79,6 +79,7 @@ std::vector<int> PickStageIFrames(const std::vector<Eigen::Matrix3Xd>& frames,
     const std::vector<int> pick = rng.SampleWithoutReplacement(
         static_cast<int>(candidates.size()), wanted);
     std::vector<int> out;
+    out.reserve(pick.size());
     for (int i : pick) out.push_back(candidates[i]);
     std::sort(out.begin(), out.end());
     return out;

@@ -148,7 +148,7 @@ void OnlineBodySolver::StartCalibration() {
   } else {
     stagei_ = std::async(
         std::launch::async,
-        [this](std::vector<Eigen::Matrix3Xd> frames) {
+        [this](const std::vector<Eigen::Matrix3Xd>& frames) {
           return RunStageI(frames);
         },
         std::move(calibration_));

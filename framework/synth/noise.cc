@@ -21,7 +21,8 @@ void MarkerFrame::Reset(int num_labels_in, int num_ghost_slots) {
         num_ghost_slots));
   }
   num_labels = num_labels_in;
-  const size_t n = static_cast<size_t>(num_labels_in + num_ghost_slots);
+  const size_t n =
+      static_cast<size_t>(num_labels_in) + static_cast<size_t>(num_ghost_slots);
   points.assign(3 * n, 0.0f);
   labels.assign(n, static_cast<int16_t>(num_labels_in));
 }

@@ -3,6 +3,7 @@
 #include "framework/core/error.h"
 #include "framework/core/random.h"
 
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -369,8 +370,7 @@ TEST(OverrideParser, OverlongFloatRangesFailAtOnce) {
       ADD_FAILURE() << text << " parsed";
     } catch (const ConfigError& e) {
       EXPECT_NE(std::string(e.what()).find(
-                    "range() produces more than 100000 values (the limit of a "
-                    "float range)"),
+                    "more than the limit of 100000 for a float range"),
                 std::string::npos)
           << e.what();
     }
@@ -389,6 +389,82 @@ TEST(OverrideParser, OverlongFloatRangesFailAtOnce) {
   // Integer ranges keep the million.
   EXPECT_EQ(RangeValues("a=range(0,1000000)").size(), 1000000u);
   EXPECT_THROW(ParseOverride("a=range(0,1000001)"), ConfigError);
+}
+
+/// The message of the ConfigError that parsing `text` throws ("" if none).
+std::string OverrideError(const std::string& text) {
+  try {
+    ParseOverride(text);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  ADD_FAILURE() << text << " parsed";
+  return "";
+}
+
+// A range's length is computed before anything is expanded: the error names
+// the override and gives the exact number of values of an int range (which
+// expanding up to the limit could not know), also where it exceeds int64.
+TEST(OverrideParser, RangeLengthCheckedBeforeExpanding) {
+  using ::testing::HasSubstr;
+  const std::string too_long = OverrideError("a=range(5777753)");
+  EXPECT_THAT(too_long, HasSubstr("'a=range(5777753)'"));
+  EXPECT_THAT(too_long,
+              HasSubstr("range() produces 5777753 values, more than the limit "
+                        "of 1000000"));
+  EXPECT_THAT(OverrideError("a=range(0,-5777753,-1)"),
+              HasSubstr("produces 5777753 values"));
+  EXPECT_THAT(
+      OverrideError("a=range(-9223372036854775807,9223372036854775807)"),
+      HasSubstr("produces 18446744073709551614 values"));
+  EXPECT_THAT(
+      OverrideError("a=range(9223372036854775807,-9223372036854775807,-3)"),
+      HasSubstr("produces 6148914691236517205 values"));
+  // Steps whose multiples leave int64 on the way still give exact values.
+  EXPECT_EQ(
+      RangeValues("a=range(-9223372036854775807,9223372036854775807,"
+                  "4611686018427387904)"),
+      (std::vector<ConfigNode>{ConfigNode(int64_t{-9223372036854775807}),
+                               ConfigNode(int64_t{-4611686018427387903}),
+                               ConfigNode(int64_t{1}),
+                               ConfigNode(int64_t{4611686018427387905})}));
+}
+
+TEST(OverrideParser, RangeLengthLimitIsExact) {
+  // Int ranges: the limit (1,000,000 values) passes, one more fails; also
+  // with a negative step and a step of 2.
+  EXPECT_EQ(RangeValues("a=range(999999)").size(), 999999u);
+  const std::vector<ConfigNode> down = RangeValues("a=range(0,-1000000,-1)");
+  ASSERT_EQ(down.size(), 1000000u);
+  EXPECT_EQ(down.front(), ConfigNode(int64_t{0}));
+  EXPECT_EQ(down.back(), ConfigNode(int64_t{-999999}));
+  EXPECT_THAT(OverrideError("a=range(1000001)"),
+              ::testing::HasSubstr("produces 1000001 values"));
+  EXPECT_THAT(OverrideError("a=range(0,-1000001,-1)"),
+              ::testing::HasSubstr("produces 1000001 values"));
+  EXPECT_EQ(RangeValues("a=range(0,2000000,2)").size(), 1000000u);
+  EXPECT_THAT(OverrideError("a=range(0,2000001,2)"),
+              ::testing::HasSubstr("produces 1000001 values"));
+  // Float ranges: 100,000 values pass, 100,001 fail (in the expansion: the
+  // up-front estimate leaves one value of slack, see CheckRange), more fail
+  // before anything is expanded.
+  EXPECT_EQ(RangeValues("a=range(0.0,99999.0)").size(), 99999u);
+  const std::vector<ConfigNode> floats = RangeValues("a=range(0,-100000.0,-1)");
+  ASSERT_EQ(floats.size(), 100000u);
+  EXPECT_EQ(floats.back(), ConfigNode(-99999.0));
+  EXPECT_EQ(RangeValues("a=range(0.0,100000.0)").size(), 100000u);
+  EXPECT_THAT(OverrideError("a=range(0.0,100001.0)"),
+              ::testing::HasSubstr(
+                  "produces more than 100000 values, the limit for a float"));
+  EXPECT_THAT(OverrideError("a=range(0.0,100002.0)"),
+              ::testing::HasSubstr("produces about 100002 values, more than "
+                                   "the limit of 100000 for a float range"));
+  EXPECT_THAT(OverrideError("a=range(0,-100002.0,-1)"),
+              ::testing::HasSubstr("produces about 100002 values"));
+  EXPECT_THAT(OverrideError("a=range(0,1e300,1e-300)"),
+              ::testing::HasSubstr("produces more than 1e308 values"));
+  EXPECT_THAT(OverrideError("a=range(0,inf)"),
+              ::testing::HasSubstr("produces unboundedly many values"));
 }
 
 /// The values of a float range as Hydra writes them into job overrides.

@@ -121,6 +121,38 @@ TEST(TypePlainScalar, MatchesTheTableForPlainScalars) {
   }
 }
 
+// PyYAML's bool and null resolvers match whole words in three spellings
+// (lower, Capitalised, UPPER); anything else is a string.
+TEST(TypePlainScalar, BoolAndNullWordsMatchExactly) {
+  for (const char* word :
+       {"yes", "Yes", "YES", "true", "True", "TRUE", "on", "On", "ON"}) {
+    EXPECT_EQ(TypePlainScalar(word), ConfigNode(true)) << word;
+  }
+  for (const char* word :
+       {"no", "No", "NO", "false", "False", "FALSE", "off", "Off", "OFF"}) {
+    EXPECT_EQ(TypePlainScalar(word), ConfigNode(false)) << word;
+  }
+  for (const char* word : {"", "~", "null", "Null", "NULL"}) {
+    EXPECT_TRUE(TypePlainScalar(word).IsNull()) << word;
+  }
+  for (const char* word : {"yES",
+                           "tRUE",
+                           "oN",
+                           "nULL",
+                           "Nul",
+                           "nulls",
+                           "~~",
+                           "yess",
+                           "ye",
+                           "o",
+                           "y",
+                           "n",
+                           "truefalse",
+                           "TRUE "}) {
+    EXPECT_EQ(TypePlainScalar(word), ConfigNode(std::string(word))) << word;
+  }
+}
+
 TEST(TypePlainScalar, KeepsTheOriginalText) {
   EXPECT_EQ(TypePlainScalar("1e-3").text(), "1e-3");
   EXPECT_EQ(TypePlainScalar("0x1F").text(), "0x1F");

@@ -25,6 +25,7 @@
 #include <string>
 #include <string_view>
 #include <system_error>
+#include <unistd.h>
 
 namespace fs = std::filesystem;
 
@@ -63,10 +64,26 @@ void RemoveTree() {
   if (!tree_root.empty()) fs::remove_all(tree_root, ec);
 }
 
+// Where the config tree lives: /dev/shm where it is a writable directory
+// (tmpfs on Linux) unless TMPDIR says otherwise, else the temp directory.
+// Each input rewrites two files of the tree and each composition opens and
+// stats several: on a disk file system (ext4) opening with O_TRUNC and
+// closing took ~9% of the fuzzer's CPU time (perf), on tmpfs half of that.
+fs::path TreeParent() {
+  std::error_code ec;
+  const fs::path shm = "/dev/shm";
+  if (std::getenv("TMPDIR") == nullptr && fs::is_directory(shm, ec) &&
+      ::access(shm.c_str(), W_OK) == 0) {
+    return shm;
+  }
+  return fs::temp_directory_path();
+}
+
 // The config tree: a primary config with a defaults list, two groups (one
-// nested, with packages) and interpolations into the fuzzed option.
+// nested, with packages) and interpolations into the fuzzed option. Made
+// once; each input rewrites only fuzz/input.yaml and primary.yaml.
 void MakeTree() {
-  std::string pattern = (fs::temp_directory_path() / "soma_config_fuzz.XXXXXX");
+  std::string pattern = (TreeParent() / "soma_config_fuzz.XXXXXX");
   if (::mkdtemp(pattern.data()) == nullptr) {
     std::fprintf(stderr, "config_fuzzer: mkdtemp failed\n");
     std::abort();
