@@ -1,5 +1,6 @@
 #include "framework/model/label_encoder.h"
 
+#include "framework/body/vertex_descriptors.h"
 #include "framework/core/error.h"
 #include "framework/model/torch_utils.h"
 
@@ -41,6 +42,23 @@ void LabelEncoderOptions::Validate() const {
             num_heads,
             fmt::format("d_model ({}) % num_heads == 0", d_model));
   }
+}
+
+torch::Tensor LayoutSlotDescriptors(const BodyModel& body,
+                                    const MarkerLayout& layout,
+                                    int64_t descriptor_width) {
+  if (LabelDescriptorWidth(body.num_joints()) != descriptor_width) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. model.label_encoder.num_joints = {}. "
+        "Violated constraint: the body's joint count ({}, body '{}')",
+        descriptor_width - LabelDescriptorWidth(0),
+        body.num_joints(),
+        body.name));
+  }
+  Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> q =
+      LayoutDescriptors(ComputeVertexDescriptors(body), layout);
+  return torch::from_blob(q.data(), {q.rows(), q.cols()}, torch::kFloat)
+      .clone();
 }
 
 torch::Tensor CheckLabelSlots(const LabelSlots& slots,

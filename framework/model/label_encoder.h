@@ -20,6 +20,8 @@
 // columns.
 #pragma once
 
+#include "framework/body/body_model.h"
+#include "framework/body/marker_layout.h"
 #include "framework/model/layers.h"
 
 #include <torch/nn/module.h>
@@ -51,6 +53,15 @@ struct LabelSlots {
   torch::Tensor descriptors;
   torch::Tensor mask;
 };
+
+/// The label slots of `layout` on `body` (LayoutDescriptors of
+/// vertex_descriptors.h at the body's template) as an `L x Q` float tensor,
+/// for LabelerImpl::SetLayout. ConfigError when Q differs from
+/// `descriptor_width` (the model's: `model.label_encoder.num_joints` is not
+/// the body's joint count).
+torch::Tensor LayoutSlotDescriptors(const BodyModel& body,
+                                    const MarkerLayout& layout,
+                                    int64_t descriptor_width);
 
 /// Checks `slots` against `num_labels` slots of width `width` and a batch
 /// of `batch` frames (ShapeError naming the tensor otherwise); returns the
