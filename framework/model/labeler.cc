@@ -77,10 +77,13 @@ LabelerImpl::LabelerImpl(
                             PointEncoder(options_.d_model, options_.hidden));
   backbone = register_module("backbone", Backbone(std::move(backbone_module)));
   if (options_.conditioned) {
-    // Label slots get no mass but the dustbin's only through Sinkhorn's
-    // dustbin row (kPaddedSlotScore).
+    // A padded label slot sends its column mass to the dustbin row
+    // (kPaddedSlotScore): one score column per slot and a dustbin row, i.e.
+    // optimal transport (the spec rejects log_softmax with a ConfigError).
     SOMA_CHECK_EQ(normalization_module->NumScoreColumns(options_.num_labels),
                   options_.num_labels);
+    SOMA_CHECK(normalization_module->HasDustbinRow())
+        << "a conditioned labeler needs a normalization with a dustbin row";
     label_encoder =
         register_module("label_encoder", LabelEncoder(options_.label_encoder));
     label_head = register_module(

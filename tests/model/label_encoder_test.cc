@@ -9,6 +9,7 @@
 #include "framework/core/error.h"
 #include "framework/model/labeler.h"
 #include "framework/model/normalization.h"
+#include "framework/registry/registry.h"
 #include "framework/testing/testing.h"
 
 #include <gtest/gtest.h>
@@ -280,6 +281,10 @@ TEST(BuildLabeler, SomaAnyLayoutFromConfig) {
   const ConfigNode norm = LoadConfig("normalization/sinkhorn.yaml");
   Labeler labeler = BuildLabeler(model, norm, 6);
   EXPECT_TRUE(labeler->conditioned());
+  BuildContext ctx;
+  EXPECT_TRUE(Instantiate<ModelSpec>(model, ctx)->conditioned());
+  EXPECT_FALSE(Instantiate<ModelSpec>(LoadConfig("model/soma.yaml"), ctx)
+                   ->conditioned());
   EXPECT_EQ(labeler->descriptor_width(), kWidth);
   std::set<std::string> prefixes;
   for (const auto& p : labeler->named_parameters()) {
