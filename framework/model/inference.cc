@@ -65,7 +65,9 @@ FrameLabeler::FrameLabeler(std::shared_ptr<LabelerImpl> model,
   SOMA_CHECK(model_ != nullptr) << "FrameLabeler needs a model";
   options_.Validate();
   model_->eval();
-  if (options_.use_fast_path && FastLabeler::Supports(*model_)) {
+  // A layout-conditioned model has no fast forward yet (no fixed head).
+  if (options_.use_fast_path && !model_->conditioned() &&
+      FastLabeler::Supports(*model_)) {
     fast_ = std::make_unique<FastLabeler>(*model_);
   }
 }

@@ -1,5 +1,6 @@
 #include "framework/model/labeler.h"
 
+#include "framework/body/vertex_descriptors.h"
 #include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/model/register.h"
@@ -27,6 +28,12 @@ void LabelerOptions::Validate() const {
   if (num_labels <= 0) fail("num_labels", num_labels, "num_labels > 0");
   if (d_model <= 0) fail("d_model", d_model, "d_model > 0");
   if (hidden <= 0) fail("hidden", hidden, "hidden > 0");
+  if (conditioned) {
+    label_encoder.Validate();
+    if (label_encoder.d_model != d_model) {
+      fail("label_encoder.d_model", label_encoder.d_model, "== d_model");
+    }
+  }
 }
 
 at::Tensor MedianOffsets(const at::Tensor& points) {
@@ -69,29 +76,106 @@ LabelerImpl::LabelerImpl(
   encoder = register_module("encoder",
                             PointEncoder(options_.d_model, options_.hidden));
   backbone = register_module("backbone", Backbone(std::move(backbone_module)));
-  head = register_module(
-      "head",
-      ScoreHead(options_.d_model,
-                options_.hidden,
-                normalization_module->NumScoreColumns(options_.num_labels)));
+  if (options_.conditioned) {
+    // A padded label slot sends its column mass to the dustbin row
+    // (kPaddedSlotScore): one score column per slot and a dustbin row, i.e.
+    // optimal transport (the spec rejects log_softmax with a ConfigError).
+    SOMA_CHECK_EQ(normalization_module->NumScoreColumns(options_.num_labels),
+                  options_.num_labels);
+    SOMA_CHECK(normalization_module->HasDustbinRow())
+        << "a conditioned labeler needs a normalization with a dustbin row";
+    label_encoder =
+        register_module("label_encoder", LabelEncoder(options_.label_encoder));
+    label_head = register_module(
+        "label_head", ConditionedScoreHead(options_.d_model, options_.hidden));
+  } else {
+    head = register_module(
+        "head",
+        ScoreHead(options_.d_model,
+                  options_.hidden,
+                  normalization_module->NumScoreColumns(options_.num_labels)));
+  }
   normalization = register_module(
       "normalization", Normalization(std::move(normalization_module)));
+  if (options_.conditioned) {
+    layout_descriptors = register_buffer(
+        "layout_descriptors",
+        torch::zeros(
+            {options_.num_labels, options_.label_encoder.descriptor_width}));
+  }
+}
+
+void LabelerImpl::SetLayout(const torch::Tensor& descriptors) {
+  if (!options_.conditioned) {
+    throw ConfigError(
+        fmt::format("model=soma has a fixed layout of {} labels; use "
+                    "model=soma_any_layout to label with a different layout",
+                    options_.num_labels));
+  }
+  if (descriptors.dim() != 2 || descriptors.size(0) != options_.num_labels ||
+      descriptors.size(1) != descriptor_width()) {
+    throw ShapeError(fmt::format(
+        "Labeler::SetLayout: descriptors must be {} x {} (label slots x "
+        "descriptor width), got {}",
+        options_.num_labels,
+        descriptor_width(),
+        ShapeString(descriptors)));
+  }
+  torch::NoGradGuard no_grad;
+  layout_descriptors.copy_(descriptors.to(layout_descriptors.options()));
 }
 
 LabelerOutput LabelerImpl::forward(const torch::Tensor& points,
                                    bool return_attention) {
+  if (!options_.conditioned) return Run(points, nullptr, return_attention);
+  if (!layout_descriptors.ne(0).any().item<bool>()) {
+    throw ConfigError(
+        "model=soma_any_layout: no layout to label with (Labeler::SetLayout "
+        "was not called and the checkpoint holds none)");
+  }
+  const LabelSlots slots{layout_descriptors.unsqueeze(0), torch::Tensor()};
+  return Run(points, &slots, return_attention);
+}
+
+LabelerOutput LabelerImpl::ForwardSlots(const torch::Tensor& points,
+                                        const LabelSlots& slots,
+                                        bool return_attention) {
+  if (!options_.conditioned) {
+    throw ConfigError(
+        fmt::format("model=soma has a fixed layout of {} labels; use "
+                    "model=soma_any_layout to label with a different layout",
+                    options_.num_labels));
+  }
+  return Run(points, &slots, return_attention);
+}
+
+LabelerOutput LabelerImpl::Run(const torch::Tensor& points,
+                               const LabelSlots* slots,
+                               bool return_attention) {
   if (points.dim() != 3 || points.size(2) != 3) {
     throw ShapeError(fmt::format("Labeler: points must be B x N x 3, got {}",
                                  ShapeString(points)));
   }
   const int64_t n = points.size(1);
+  torch::Tensor mask;
+  if (slots != nullptr) {
+    mask = CheckLabelSlots(
+               *slots, options_.num_labels, descriptor_width(), points.size(0))
+               .to(points.device());
+  }
   LabelerOutput out;
   const torch::Tensor centred = MedianCenter(points);
   torch::Tensor features = encoder(centred.transpose(1, 2));
   std::vector<torch::Tensor> attention;
   features =
       backbone->forward(features, return_attention ? &attention : nullptr);
-  out.scores = head(features);
+  if (slots != nullptr) {
+    const torch::Tensor labels =
+        label_encoder(slots->descriptors.to(points.options()), mask);
+    out.scores = label_head(features, labels, mask);
+  } else {
+    out.scores = head(features);
+  }
   out.log_assignment = normalization->forward(out.scores);
   const torch::Tensor point_rows = out.log_assignment.narrow(1, 0, n);
   out.label_confidence = point_rows.exp();
@@ -136,6 +220,64 @@ class SomaModelSpec : public ModelSpec {
   std::shared_ptr<BackboneSpec> backbone_;
 };
 
+/// `name: soma_any_layout`: the layout-conditioned labeller (issue #25
+/// item 1): the `soma` point branch, a label encoder and a conditioned score
+/// head; Sinkhorn only (padded slots need the dustbin row).
+class SomaAnyLayoutModelSpec : public ModelSpec {
+ public:
+  SomaAnyLayoutModelSpec(LabelerOptions options,
+                         std::shared_ptr<BackboneSpec> backbone)
+      : options_(std::move(options)), backbone_(std::move(backbone)) {}
+
+  Labeler Build(int64_t num_labels,
+                Normalization normalization) const override {
+    if (num_labels <= 0) {
+      throw ConfigError(fmt::format(
+          "Labeler: the marker layout has {} labels; at least one is needed",
+          num_labels));
+    }
+    if (dynamic_cast<const SinkhornImpl*>(normalization.get()) == nullptr) {
+      throw ConfigError(
+          "Invalid configuration. normalization: model=soma_any_layout needs "
+          "normalization=sinkhorn (padded label slots go to the dustbin row)");
+    }
+    LabelerOptions options = options_;
+    options.num_labels = num_labels;
+    return Labeler(options,
+                   backbone_->Build(options.d_model, options.hidden).ptr(),
+                   normalization.ptr());
+  }
+  bool conditioned() const override { return true; }
+
+ private:
+  LabelerOptions options_;
+  std::shared_ptr<BackboneSpec> backbone_;
+};
+
+/// Reads `d_model`, `hidden` and `backbone` of a `soma`-style model node.
+std::shared_ptr<BackboneSpec> ReadPointBranch(const ConfigNode& node,
+                                              ConfigReader& reader,
+                                              BuildContext& ctx,
+                                              LabelerOptions* options) {
+  reader.Read("d_model", &options->d_model);
+  reader.Read("hidden", &options->hidden);
+  reader.Check("d_model", options->d_model > 0, "d_model > 0");
+  reader.Check("hidden", options->hidden > 0, "hidden > 0");
+  const ConfigNode* backbone_node = reader.Child("backbone");
+  if (backbone_node == nullptr || !backbone_node->IsMap()) {
+    throw ConfigError(
+        fmt::format("Invalid configuration. {}.backbone: expected a map "
+                    "with 'name' naming a "
+                    "backbone ({})",
+                    node.path().empty() ? "model" : node.path(),
+                    fmt::join(GetRegistry<BackboneSpec>().Keys(), ", ")));
+  }
+  std::shared_ptr<BackboneSpec> backbone =
+      Instantiate<BackboneSpec>(*backbone_node, ctx);
+  backbone->CheckCompatible(options->d_model, backbone_node->path());
+  return backbone;
+}
+
 }  // namespace
 
 void RegisterModelSpecs() {
@@ -143,24 +285,42 @@ void RegisterModelSpecs() {
       "soma", [](const ConfigNode& node, BuildContext& ctx) {
         ConfigReader reader(node);
         LabelerOptions options;
-        reader.Read("d_model", &options.d_model);
-        reader.Read("hidden", &options.hidden);
-        reader.Check("d_model", options.d_model > 0, "d_model > 0");
-        reader.Check("hidden", options.hidden > 0, "hidden > 0");
-        const ConfigNode* backbone_node = reader.Child("backbone");
-        reader.Finish();
-        if (backbone_node == nullptr || !backbone_node->IsMap()) {
-          throw ConfigError(
-              fmt::format("Invalid configuration. {}.backbone: expected a map "
-                          "with 'name' naming a "
-                          "backbone ({})",
-                          node.path().empty() ? "model" : node.path(),
-                          fmt::join(GetRegistry<BackboneSpec>().Keys(), ", ")));
-        }
         std::shared_ptr<BackboneSpec> backbone =
-            Instantiate<BackboneSpec>(*backbone_node, ctx);
-        backbone->CheckCompatible(options.d_model, backbone_node->path());
+            ReadPointBranch(node, reader, ctx, &options);
+        reader.Finish();
         return std::make_unique<SomaModelSpec>(options, std::move(backbone));
+      });
+  GetRegistry<ModelSpec>().Register(
+      "soma_any_layout", [](const ConfigNode& node, BuildContext& ctx) {
+        ConfigReader reader(node);
+        LabelerOptions options;
+        options.conditioned = true;
+        std::shared_ptr<BackboneSpec> backbone =
+            ReadPointBranch(node, reader, ctx, &options);
+        const ConfigNode* label_node = reader.Child("label_encoder");
+        reader.Finish();
+        LabelEncoderOptions& label = options.label_encoder;
+        int num_joints = kNumCoreJoints;
+        if (label_node != nullptr) {
+          ConfigReader label_reader(*label_node);
+          label_reader.Read("num_joints", &num_joints);
+          label_reader.Read("hidden", &label.hidden);
+          label_reader.Read("num_layers", &label.num_layers);
+          label_reader.Read("num_heads", &label.num_heads);
+          label_reader.Check("num_joints", num_joints > 0, "num_joints > 0");
+          label_reader.Check("hidden", label.hidden > 0, "hidden > 0");
+          label_reader.Check(
+              "num_layers", label.num_layers >= 0, "num_layers >= 0");
+          label_reader.Check(
+              "num_heads",
+              label.num_heads > 0 && options.d_model % label.num_heads == 0,
+              "num_heads > 0 and d_model % num_heads == 0");
+          label_reader.Finish();
+        }
+        label.d_model = options.d_model;
+        label.descriptor_width = LabelDescriptorWidth(num_joints);
+        return std::make_unique<SomaAnyLayoutModelSpec>(options,
+                                                        std::move(backbone));
       });
   RegisterConfigGroup<ModelSpec>("model");
 }

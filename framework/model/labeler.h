@@ -24,6 +24,7 @@
 #pragma once
 
 #include "framework/config/node.h"
+#include "framework/model/label_encoder.h"
 #include "framework/model/labeler_output.h"
 #include "framework/model/layers.h"
 #include "framework/model/normalization.h"
@@ -44,7 +45,11 @@ struct LabelerOptions {
   int64_t num_labels = 0;  // L, from the marker layout (null id = L)
   int64_t d_model = 125;   // feature width D
   int64_t hidden = 256;    // hidden width of the encoder/head ResConv1DBlocks
-  void Validate() const;   // ConfigError on violation
+  /// model=soma_any_layout: the labels are an input (label_encoder.h); L is
+  /// then the number of label slots.
+  bool conditioned = false;
+  LabelEncoderOptions label_encoder;  // conditioned only
+  void Validate() const;              // ConfigError on violation
 };
 
 /// Per-frame median centring (REFERENCE 1.1): for every frame, the offset is
@@ -57,7 +62,11 @@ at::Tensor MedianCenter(const at::Tensor& points);
 at::Tensor MedianOffsets(const at::Tensor& points);
 
 /// The composed labeler. Children: `encoder`, `backbone`, `head`,
-/// `normalization`.
+/// `normalization`. A conditioned labeler (LabelerOptions::conditioned,
+/// model=soma_any_layout) has `label_encoder` and `label_head` in place of
+/// `head`, and the buffer `layout_descriptors` (`L x Q`): the label slots of
+/// the layout it labels when forward() gets no slots (set by SetLayout; saved
+/// in checkpoints, so that a checkpoint labels its training layout as is).
 class LabelerImpl : public torch::nn::Module {
  public:
   /// `backbone->d_model()` must equal `options.d_model`; the head gets
@@ -70,18 +79,45 @@ class LabelerImpl : public torch::nn::Module {
   /// A', label confidences and label ids (LabelerOutput); the attention
   /// weights (`B x k x h x N x N`) only when `return_attention` is true and
   /// the backbone has attention.
+  /// A conditioned labeler labels against layout_descriptors (ConfigError if
+  /// SetLayout was never called and none was loaded).
   LabelerOutput forward(const torch::Tensor& points,
                         bool return_attention = false);
+  /// A conditioned labeler's forward with the given label slots (label ids
+  /// index the slots; id L is null). ConfigError for a plain labeler (its
+  /// layout is fixed). Not an overload of forward(): torch's ModuleHolder
+  /// call operator needs forward() to be unique.
+  LabelerOutput ForwardSlots(const torch::Tensor& points,
+                             const LabelSlots& slots,
+                             bool return_attention = false);
 
   const LabelerOptions& options() const { return options_; }
   int64_t num_labels() const { return options_.num_labels; }
+  /// True for a layout-conditioned labeler (the fast engines do not
+  /// support it yet: they need `head`).
+  bool conditioned() const { return options_.conditioned; }
+  /// Q of a conditioned labeler's descriptors (0 otherwise).
+  int64_t descriptor_width() const {
+    return options_.conditioned ? options_.label_encoder.descriptor_width : 0;
+  }
+  /// Sets the layout of a conditioned labeler: `descriptors` `L x Q` float
+  /// (LayoutDescriptors of vertex_descriptors.h). ShapeError on another
+  /// shape, ConfigError for a plain labeler.
+  void SetLayout(const torch::Tensor& descriptors);
 
   PointEncoder encoder{nullptr};
   Backbone backbone{nullptr};
-  ScoreHead head{nullptr};
+  ScoreHead head{nullptr};  // null when conditioned
   Normalization normalization{nullptr};
+  LabelEncoder label_encoder{nullptr};       // conditioned only
+  ConditionedScoreHead label_head{nullptr};  // conditioned only
+  torch::Tensor layout_descriptors;          // conditioned only, L x Q
 
  private:
+  LabelerOutput Run(const torch::Tensor& points,
+                    const LabelSlots* slots,
+                    bool return_attention);
+
   LabelerOptions options_;
 };
 TORCH_MODULE(Labeler);
@@ -96,6 +132,8 @@ class ModelSpec {
   /// A freshly initialised labeler for `num_labels` labels.
   virtual Labeler Build(int64_t num_labels,
                         Normalization normalization) const = 0;
+  /// True when the labels are an input of the model (soma_any_layout).
+  virtual bool conditioned() const { return false; }
 };
 
 /// Builds the labeler selected by `model` (a `model` group node, `name:

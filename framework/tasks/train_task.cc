@@ -122,6 +122,22 @@ class TrainTask : public Task {
     SOMA_LOG(INFO,
              "train: labeler with {} trainable parameters",
              CountTrainableParameters(*model));
+    if (model->conditioned()) {
+      // One fixed layout per run (issue #25 item 1, first slice): the label
+      // slots are the synthesizer's layout, saved with the checkpoints.
+      if (!train_synth.has_value()) {
+        throw ConfigError(
+            "model=soma_any_layout trains on task.data=synth only (its label "
+            "slots come from the synthesizer's layout)");
+      }
+      model->SetLayout(LayoutSlotDescriptors(BuildBody(cfg, build),
+                                             train_synth->superset(),
+                                             model->descriptor_width()));
+      SOMA_LOG(INFO,
+               "train: layout-conditioned labeler, {} label slots from the "
+               "synthesizer's layout",
+               labels.size());
+    }
     std::shared_ptr<const LabelingLoss> loss =
         Instantiate<LabelingLoss>(cfg.at("loss"), build);
     const std::unique_ptr<OptimizerSpec> optimizer =

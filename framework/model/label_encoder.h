@@ -1,0 +1,123 @@
+// The label branch of the layout-conditioned labeller (model=soma_any_layout;
+// issue #25 item 1, docs/any_layout_design.md): label descriptors q_l
+// (framework/body/vertex_descriptors.h) -> label embeddings E, and the score
+// head that matches point features against them.
+//
+//   LabelEncoder          q_l (B x L x Q) -> MLP (Q -> hidden -> D) -> k_l
+//                         masked self-attention layers over the L label
+//                         tokens (the MultiHeadAttention layers of the point
+//                         backbone, no positional input) -> E (B x D x L).
+//   ConditionedScoreHead  S = exp(log_scale) (F' W_p)(E W_l)^T / sqrt(D)
+//                         (B x N x L), F' = ReLU(ResConv1DBlock(D->2D)(ReLU
+//                         F)) as in ScoreHead; padded label slots get
+//                         kPaddedSlotScore so that Sinkhorn sends their
+//                         column mass to the dustbin row only.
+//
+// Label slots carry a mask (true = the label exists in the frame's layout).
+// A padded slot is invisible to the other labels (masked as an attention
+// key) and receives no point mass. Order: nothing depends on the order of
+// the slots (no positional input), so permuting a layout permutes the score
+// columns.
+#pragma once
+
+#include "framework/body/body_model.h"
+#include "framework/body/marker_layout.h"
+#include "framework/model/layers.h"
+
+#include <torch/nn/module.h>
+#include <torch/nn/modules/linear.h>
+#include <torch/nn/pimpl.h>
+
+#include <cstdint>
+#include <vector>
+
+namespace soma {
+
+/// Score of a padded label slot before Sinkhorn (exp of it is 0 in float).
+inline constexpr double kPaddedSlotScore = -1e4;
+
+/// Options of the label branch.
+struct LabelEncoderOptions {
+  int64_t descriptor_width = 0;  // Q (LabelDescriptorWidth of the body)
+  int64_t d_model = 125;         // D, the point features' width
+  int64_t hidden = 256;          // the MLP's hidden width
+  int64_t num_layers = 2;        // k_l label self-attention layers
+  int64_t num_heads = 5;         // heads; must divide d_model
+  void Validate() const;         // ConfigError on violation
+};
+
+/// The label slots of a batch: `descriptors` `B x L x Q` float (or `1 x L x
+/// Q`, shared by every frame), `mask` `B x L` (or `1 x L`) bool, true where
+/// the slot holds a label; undefined = every slot holds one.
+struct LabelSlots {
+  torch::Tensor descriptors;
+  torch::Tensor mask;
+};
+
+/// The label slots of `layout` on `body` (LayoutDescriptors of
+/// vertex_descriptors.h at the body's template) as an `L x Q` float tensor,
+/// for LabelerImpl::SetLayout. ConfigError when Q differs from
+/// `descriptor_width` (the model's: `model.label_encoder.num_joints` is not
+/// the body's joint count).
+torch::Tensor LayoutSlotDescriptors(const BodyModel& body,
+                                    const MarkerLayout& layout,
+                                    int64_t descriptor_width);
+
+/// Checks `slots` against `num_labels` slots of width `width` and a batch
+/// of `batch` frames (ShapeError naming the tensor otherwise); returns the
+/// mask, all true when undefined.
+torch::Tensor CheckLabelSlots(const LabelSlots& slots,
+                              int64_t num_labels,
+                              int64_t width,
+                              int64_t batch);
+
+/// Multi-head self-attention update of `layer` (MultiHeadAttentionImpl's
+/// computation) with keys masked: `x` `B x D x L`, `key_mask` `B x L` bool
+/// (false keys get no attention; a token always sees itself, so that a
+/// padded token's softmax is defined). Returns the `B x D x L` update.
+torch::Tensor MaskedAttentionUpdate(MultiHeadAttentionImpl& layer,
+                                    const torch::Tensor& x,
+                                    const torch::Tensor& key_mask);
+
+/// Label descriptors -> label embeddings. Children: `mlp.{0,2}` (Linear),
+/// `self_attention_layers.{i}` (MultiHeadAttention).
+class LabelEncoderImpl : public torch::nn::Module {
+ public:
+  explicit LabelEncoderImpl(const LabelEncoderOptions& options);
+  /// `descriptors` `B x L x Q`, `mask` `B x L` bool -> `B x D x L`.
+  torch::Tensor forward(const torch::Tensor& descriptors,
+                        const torch::Tensor& mask);
+  const LabelEncoderOptions& options() const { return options_; }
+
+  torch::nn::Linear input{nullptr};   // Q -> hidden
+  torch::nn::Linear output{nullptr};  // hidden -> D
+  std::vector<MultiHeadAttention> layers;
+
+ private:
+  LabelEncoderOptions options_;
+};
+TORCH_MODULE(LabelEncoder);
+
+/// Point features x label embeddings -> scores. Children: `block`
+/// (ResConv1DBlock D->2D), `point_proj` (2D->D), `label_proj` (D->D),
+/// parameter `log_scale` (0-dim, initialised to 0).
+class ConditionedScoreHeadImpl : public torch::nn::Module {
+ public:
+  ConditionedScoreHeadImpl(int64_t d_model, int64_t hidden);
+  /// `features` `B x D x N`, `labels` `B x D x L` or `1 x D x L`, `mask`
+  /// `B x L` or `1 x L` bool -> scores `B x N x L`.
+  torch::Tensor forward(const torch::Tensor& features,
+                        const torch::Tensor& labels,
+                        const torch::Tensor& mask);
+
+  ResConv1DBlock block{nullptr};
+  torch::nn::Conv1d point_proj{nullptr};
+  torch::nn::Conv1d label_proj{nullptr};
+  torch::Tensor log_scale;
+
+ private:
+  int64_t d_model_;
+};
+TORCH_MODULE(ConditionedScoreHead);
+
+}  // namespace soma

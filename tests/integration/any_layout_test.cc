@@ -1,0 +1,113 @@
+// model=soma_any_layout end to end (issue #25 item 1, first slice): `soma
+// train` on the synthesizer's layout with the fast engine requested (it falls
+// back to torch with one log line), the checkpoint holds the layout's label
+// slots and loads, and `soma label` labels the bundled clip with it.
+#include "framework/body/marker_layout.h"
+#include "framework/body/procedural_body.h"
+#include "framework/config/app.h"
+#include "framework/core/file.h"
+#include "framework/io/c3d.h"
+#include "framework/model/label_encoder.h"
+#include "framework/model/labeler.h"
+#include "framework/tasks/task.h"
+#include "framework/testing/testing.h"
+#include "framework/train/trainer.h"
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include "tests/integration/soma_command.h"
+#include <algorithm>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace soma {
+namespace {
+
+namespace fs = std::filesystem;
+
+int CountOccurrences(const std::string& text, const std::string& needle) {
+  int count = 0;
+  for (size_t at = text.find(needle); at != std::string::npos;
+       at = text.find(needle, at + 1)) {
+    ++count;
+  }
+  return count;
+}
+
+TEST(AnyLayout, TrainsSavesLoadsAndLabelsTheBundledClip) {
+  const fs::path dir = testing::CreateTestDir();
+  const fs::path run = dir / "train";
+  const std::string configs = (testing::SourceDir() / "configs").string();
+  auto train_args = [&](int epochs) {
+    return std::vector<std::string>{
+        "task=train",
+        "model=soma_any_layout",
+        "scale=cpu",
+        "train.engine=fast",
+        "hydra.run.dir=" + run.string(),
+        "model.d_model=16",
+        "model.hidden=16",
+        "model.backbone.num_layers=1",
+        "model.backbone.num_heads=2",
+        "model.label_encoder.num_heads=2",
+        "model.label_encoder.num_layers=1",
+        "normalization.num_iters=5",
+        "train.batch_size=16",
+        "train.train_frames=32",
+        "train.val_frames=16",
+        "train.max_epochs=" + std::to_string(epochs),
+        "train.progress=false",
+        "threads=1"};
+  };
+  ASSERT_EQ(RunHydraApp(train_args(1), configs, "config", RunConfiguredTask),
+            0);
+  const std::string log = ReadFile(run / "soma.log");
+  EXPECT_EQ(CountOccurrences(log,
+                             "train.engine=fast does not support "
+                             "model=soma_any_layout (label branch); using "
+                             "torch"),
+            1)
+      << log;
+
+  // The checkpoint is a conditioned labeler holding the training layout's
+  // label slots (cmu41 on the procedural body, the default config).
+  const Labeler model =
+      LoadLabelerFromCheckpoint(run / "checkpoints" / "best.pt");
+  ASSERT_TRUE(model->conditioned());
+  ASSERT_EQ(model->num_labels(), 41);
+  const BodyModel body = MakeProceduralBody();
+  const torch::Tensor expected = LayoutSlotDescriptors(
+      body, MakeBuiltinLayout(body, "cmu41"), model->descriptor_width());
+  EXPECT_TRUE(torch::equal(model->layout_descriptors, expected));
+
+  // Same run dir, one more epoch: resumes from last.pt (weights, optimizer
+  // and the label slots).
+  ASSERT_EQ(RunHydraApp(train_args(2), configs, "config", RunConfiguredTask),
+            0);
+  const std::string metrics = ReadFile(run / "metrics.csv");
+  EXPECT_EQ(std::count(metrics.begin(), metrics.end(), '\n'), 3) << metrics;
+
+  // `soma label` with it on the bundled clip.
+  std::string err;
+  const fs::path clip = testing::SourceDir() / "data" / "cmu_01_01_f0-599.c3d";
+  ASSERT_EQ(testing::RunSomaTask(
+                dir,
+                {"label",
+                 "hydra.run.dir=label",
+                 "task.input=" + clip.string(),
+                 "task.checkpoint=" + (run / "checkpoints/best.pt").string()},
+                &err),
+            0)
+      << err;
+  const C3dData labeled =
+      ReadC3d(dir / "label" / "cmu_01_01_f0-599_labeled.c3d");
+  EXPECT_EQ(labeled.num_frames, 600);
+  ASSERT_GE(labeled.num_points, 41);
+  EXPECT_EQ(labeled.labels[0], "C7");  // the checkpoint's label order
+}
+
+}  // namespace
+}  // namespace soma

@@ -1,0 +1,321 @@
+// The layout-conditioned labeller (model=soma_any_layout, issue #25 item 1):
+// shapes, invariance to the order of the labels, padded label slots, the
+// label branch's gradients against float64 finite differences, building
+// from the config.
+#include "framework/model/label_encoder.h"
+
+#include "framework/body/vertex_descriptors.h"
+#include "framework/config/yaml_io.h"
+#include "framework/core/error.h"
+#include "framework/model/labeler.h"
+#include "framework/model/normalization.h"
+#include "framework/registry/registry.h"
+#include "framework/testing/testing.h"
+
+#include <gtest/gtest.h>
+#include <torch/torch.h>
+
+#include <set>
+#include <string>
+#include <vector>
+
+namespace soma {
+namespace {
+
+constexpr int64_t kWidth = 3 + 3 + 1 + 24 + 4;  // LabelDescriptorWidth(24)
+constexpr double kTol = 1e-5;                   // float32 forward
+constexpr double kGradTol = 1e-6;               // float64 FD vs autograd
+
+ConfigNode LoadConfig(const std::string& relative) {
+  return LoadConfigFile(testing::SourceDir() / "configs" / relative).content;
+}
+
+Labeler SmallConditionedLabeler(int64_t num_labels, int num_iters = 35) {
+  LabelerOptions options;
+  options.num_labels = num_labels;
+  options.d_model = 12;
+  options.hidden = 16;
+  options.conditioned = true;
+  options.label_encoder.descriptor_width = kWidth;
+  options.label_encoder.d_model = 12;
+  options.label_encoder.hidden = 10;
+  options.label_encoder.num_layers = 2;
+  options.label_encoder.num_heads = 3;
+  SelfAttentionOptions attention;
+  attention.d_model = 12;
+  attention.num_layers = 2;
+  attention.num_heads = 3;
+  SinkhornOptions sinkhorn;
+  sinkhorn.num_iters = num_iters;
+  return Labeler(
+      options, SelfAttention(attention).ptr(), Sinkhorn(sinkhorn).ptr());
+}
+
+torch::Tensor RandomDescriptors(int64_t batch, int64_t labels) {
+  return torch::randn({batch, labels, kWidth});
+}
+
+TEST(LabelEncoder, DescriptorWidthMatchesTheBody) {
+  EXPECT_EQ(LabelDescriptorWidth(24), kWidth);
+}
+
+TEST(ConditionedLabeler, OutputShapes) {
+  torch::manual_seed(1);
+  Labeler model = SmallConditionedLabeler(6);
+  EXPECT_TRUE(model->conditioned());
+  EXPECT_TRUE(model->head.is_empty());
+  const torch::Tensor points = torch::randn({2, 9, 3});
+  const LabelerOutput out =
+      model->ForwardSlots(points, LabelSlots{RandomDescriptors(2, 6), {}});
+  EXPECT_EQ(out.scores.sizes(), (std::vector<int64_t>{2, 9, 6}));
+  EXPECT_EQ(out.log_assignment.sizes(), (std::vector<int64_t>{2, 10, 7}));
+  EXPECT_EQ(out.label_confidence.sizes(), (std::vector<int64_t>{2, 9, 7}));
+  EXPECT_EQ(out.label_ids.sizes(), (std::vector<int64_t>{2, 9}));
+  // One layout shared by the batch (1 x L x Q) broadcasts.
+  const LabelerOutput shared =
+      model->ForwardSlots(points, LabelSlots{RandomDescriptors(1, 6), {}});
+  EXPECT_EQ(shared.scores.sizes(), (std::vector<int64_t>{2, 9, 6}));
+  // Wrong slot shapes are one-line ShapeErrors.
+  EXPECT_THROW(
+      model->ForwardSlots(points, LabelSlots{RandomDescriptors(2, 5), {}}),
+      ShapeError);
+  EXPECT_THROW(
+      model->ForwardSlots(points, LabelSlots{RandomDescriptors(3, 6), {}}),
+      ShapeError);
+  EXPECT_THROW(
+      model->ForwardSlots(
+          points, LabelSlots{RandomDescriptors(2, 6), torch::ones({2, 6})}),
+      ShapeError);  // float mask
+}
+
+TEST(ConditionedLabeler, PermutingTheLayoutPermutesTheColumns) {
+  torch::manual_seed(2);
+  Labeler model = SmallConditionedLabeler(7);
+  torch::NoGradGuard no_grad;
+  for (const bool training : {false, true}) {
+    model->train(training);
+    const torch::Tensor points = torch::randn({3, 10, 3});
+    const torch::Tensor q = RandomDescriptors(3, 7);
+    const torch::Tensor perm = torch::randperm(7);
+    const LabelerOutput a = model->ForwardSlots(points, LabelSlots{q, {}});
+    const LabelerOutput b =
+        model->ForwardSlots(points, LabelSlots{q.index_select(1, perm), {}});
+    // Column j of b is column perm[j] of a; the null column stays last.
+    EXPECT_TRUE(
+        torch::allclose(b.scores, a.scores.index_select(2, perm), kTol, kTol))
+        << "training=" << training;
+    const torch::Tensor cols = torch::cat({perm, torch::tensor({int64_t{7}})});
+    EXPECT_TRUE(torch::allclose(
+        b.log_assignment, a.log_assignment.index_select(2, cols), kTol, kTol))
+        << "training=" << training;
+    // The label ids are the permuted slots.
+    const torch::Tensor inverse = torch::argsort(cols);
+    EXPECT_TRUE(torch::equal(inverse.index({a.label_ids}), b.label_ids))
+        << "training=" << training;
+  }
+}
+
+TEST(ConditionedLabeler, PaddedSlotsGetNoAssignmentAndDoNotMatter) {
+  torch::manual_seed(3);
+  Labeler model = SmallConditionedLabeler(8);
+  model->eval();
+  torch::NoGradGuard no_grad;
+  const torch::Tensor points = torch::randn({2, 9, 3});
+  torch::Tensor q = RandomDescriptors(2, 8);
+  torch::Tensor mask = torch::ones({2, 8}, torch::kBool);
+  mask.index_put_({0, torch::indexing::Slice(5, 8)}, false);
+  mask.index_put_({1, 0}, false);
+  const LabelerOutput a = model->ForwardSlots(points, LabelSlots{q, mask});
+  const torch::Tensor confidence = a.label_confidence;  // B x N x (L+1)
+  EXPECT_LT(
+      confidence
+          .index({0, torch::indexing::Slice(), torch::indexing::Slice(5, 8)})
+          .max()
+          .item<double>(),
+      1e-30);
+  EXPECT_LT(
+      confidence.index({1, torch::indexing::Slice(), 0}).max().item<double>(),
+      1e-30);
+  // A padded column's mass goes to the dustbin row: its column of exp(A')
+  // holds the same mass as a real label's column.
+  const torch::Tensor p = a.log_assignment.exp();
+  EXPECT_NEAR(p[0].select(1, 6).sum().item<double>(),
+              p[0].select(1, 1).sum().item<double>(),
+              1e-4);
+  EXPECT_GT(p[0][9][6].item<double>(),
+            0.99 * p[0].select(1, 6).sum().item<double>());
+  // No label id lands on a padded slot.
+  EXPECT_TRUE(
+      a.label_ids[0].lt(5).logical_or(a.label_ids[0].eq(8)).all().item<bool>());
+  EXPECT_TRUE(a.label_ids[1].ne(0).all().item<bool>());
+  // Whatever a padded slot holds does not change the output.
+  torch::Tensor garbage = q.clone();
+  garbage.index_put_({0, torch::indexing::Slice(5, 8)},
+                     100 * torch::randn({3, kWidth}));
+  garbage.index_put_({1, 0}, -50 * torch::ones({kWidth}));
+  const LabelerOutput b =
+      model->ForwardSlots(points, LabelSlots{garbage, mask});
+  EXPECT_TRUE(torch::allclose(a.log_assignment, b.log_assignment, kTol, kTol));
+}
+
+// Central finite differences of a scalar function of the labeller's output
+// against autograd, in float64, for descriptor entries and label-branch
+// parameters.
+TEST(ConditionedLabeler, LabelBranchGradientsMatchFiniteDifferences) {
+  torch::manual_seed(4);
+  Labeler model = SmallConditionedLabeler(5, /*num_iters=*/10);
+  model->to(torch::kDouble);
+  model->eval();  // BatchNorm on running statistics: a fixed function
+  const torch::Tensor points = torch::randn({2, 7, 3}, torch::kDouble) * 0.5;
+  const torch::Tensor q = torch::randn({2, 5, kWidth}, torch::kDouble);
+  torch::Tensor mask = torch::ones({2, 5}, torch::kBool);
+  mask.index_put_({1, 4}, false);
+  const torch::Tensor weights = torch::randn({2, 8, 6}, torch::kDouble);
+  auto objective = [&](const torch::Tensor& descriptors) {
+    const LabelerOutput out =
+        model->ForwardSlots(points, LabelSlots{descriptors, mask});
+    // The padded column's entries are -inf-like constants: leave them out.
+    return (out.log_assignment.clamp_min(-50) * weights).sum();
+  };
+  // d/dq.
+  torch::Tensor x = q.clone().requires_grad_(true);
+  objective(x).backward();
+  const torch::Tensor grad_q = x.grad().clone();
+  constexpr double kStep = 1e-6;
+  int checked = 0;
+  for (const auto& [b, l, c] : std::vector<std::tuple<int, int, int>>{
+           {0, 0, 0}, {0, 3, 5}, {1, 2, 9}, {1, 1, 33}, {0, 4, 6}}) {
+    torch::NoGradGuard no_grad;
+    torch::Tensor plus = q.clone();
+    torch::Tensor minus = q.clone();
+    plus[b][l][c] += kStep;
+    minus[b][l][c] -= kStep;
+    const double fd =
+        (objective(plus).item<double>() - objective(minus).item<double>()) /
+        (2 * kStep);
+    const double ad = grad_q[b][l][c].item<double>();
+    EXPECT_NEAR(ad, fd, kGradTol * std::max(1.0, std::abs(fd)))
+        << "q[" << b << "][" << l << "][" << c << "]";
+    ++checked;
+  }
+  // The padded slot's descriptor has no gradient.
+  EXPECT_EQ(grad_q[1][4].abs().max().item<double>(), 0.0);
+  // d/dparameters of the label branch.
+  for (const std::string name :
+       {"label_encoder.mlp.0.weight",
+        "label_encoder.self_attention_layers.1.proj.1.weight",
+        "label_head.label_proj.weight",
+        "label_head.point_proj.bias",
+        "label_head.log_scale"}) {
+    torch::Tensor param = model->named_parameters()[name];
+    ASSERT_TRUE(param.defined()) << name;
+    model->zero_grad();
+    objective(q).backward();
+    const torch::Tensor grad = param.grad().clone().reshape({-1});
+    const int64_t index = param.numel() / 2;
+    torch::NoGradGuard no_grad;
+    torch::Tensor flat = param.view({-1});
+    const double saved = flat[index].item<double>();
+    flat[index] = saved + kStep;
+    const double up = objective(q).item<double>();
+    flat[index] = saved - kStep;
+    const double down = objective(q).item<double>();
+    flat[index] = saved;
+    const double fd = (up - down) / (2 * kStep);
+    EXPECT_NEAR(
+        grad[index].item<double>(), fd, kGradTol * std::max(1.0, std::abs(fd)))
+        << name;
+    EXPECT_NE(fd, 0.0) << name;  // the check can fail: the entry matters
+    ++checked;
+  }
+  EXPECT_EQ(checked, 10);
+}
+
+TEST(ConditionedLabeler, StoredLayoutIsTheDefaultSlots) {
+  torch::manual_seed(5);
+  Labeler model = SmallConditionedLabeler(4);
+  model->eval();
+  torch::NoGradGuard no_grad;
+  const torch::Tensor points = torch::randn({3, 6, 3});
+  EXPECT_THROW(model->forward(points), ConfigError);  // no layout yet
+  const torch::Tensor q = RandomDescriptors(1, 4)[0];
+  EXPECT_THROW(model->SetLayout(q.narrow(0, 0, 3)), ShapeError);
+  model->SetLayout(q);
+  const LabelerOutput a = model->forward(points);
+  const LabelerOutput b =
+      model->ForwardSlots(points, LabelSlots{q.expand({3, 4, kWidth}), {}});
+  EXPECT_TRUE(torch::allclose(a.log_assignment, b.log_assignment, kTol, kTol));
+  // The layout travels with the module's state (checkpoints).
+  std::set<std::string> buffers;
+  for (const auto& item : model->named_buffers()) buffers.insert(item.key());
+  EXPECT_EQ(buffers.count("layout_descriptors"), 1u);
+}
+
+TEST(ConditionedLabeler, PlainModelRejectsSlots) {
+  LabelerOptions options;
+  options.num_labels = 41;
+  options.d_model = 12;
+  options.hidden = 16;
+  SelfAttentionOptions attention;
+  attention.d_model = 12;
+  attention.num_layers = 1;
+  attention.num_heads = 3;
+  Labeler plain(options, SelfAttention(attention).ptr(), Sinkhorn().ptr());
+  EXPECT_FALSE(plain->conditioned());
+  const std::string message = testing::ErrorMessage<ConfigError>([&] {
+    plain->ForwardSlots(torch::randn({1, 5, 3}),
+                        LabelSlots{RandomDescriptors(1, 41), {}});
+  });
+  EXPECT_NE(message.find("fixed layout of 41 labels"), std::string::npos)
+      << message;
+  EXPECT_THROW(plain->SetLayout(RandomDescriptors(1, 41)[0]), ConfigError);
+}
+
+TEST(BuildLabeler, SomaAnyLayoutFromConfig) {
+  ConfigNode model = LoadConfig("model/soma_any_layout.yaml");
+  model.SetPath("d_model", ConfigNode(int64_t{10}));
+  model.SetPath("hidden", ConfigNode(int64_t{8}));
+  model.SetPath("backbone.num_layers", ConfigNode(int64_t{1}));
+  model.SetPath("backbone.num_heads", ConfigNode(int64_t{2}));
+  model.SetPath("label_encoder.num_heads", ConfigNode(int64_t{2}));
+  const ConfigNode norm = LoadConfig("normalization/sinkhorn.yaml");
+  Labeler labeler = BuildLabeler(model, norm, 6);
+  EXPECT_TRUE(labeler->conditioned());
+  BuildContext ctx;
+  EXPECT_TRUE(Instantiate<ModelSpec>(model, ctx)->conditioned());
+  EXPECT_FALSE(Instantiate<ModelSpec>(LoadConfig("model/soma.yaml"), ctx)
+                   ->conditioned());
+  EXPECT_EQ(labeler->descriptor_width(), kWidth);
+  std::set<std::string> prefixes;
+  for (const auto& p : labeler->named_parameters()) {
+    prefixes.insert(p.key().substr(0, p.key().find('.')));
+  }
+  EXPECT_EQ(prefixes,
+            (std::set<std::string>{"encoder",
+                                   "backbone",
+                                   "label_encoder",
+                                   "label_head",
+                                   "normalization"}));
+  // Neither the parameter count nor the names depend on L (no per-label
+  // output layer).
+  EXPECT_EQ(CountTrainableParameters(*labeler),
+            CountTrainableParameters(*BuildLabeler(model, norm, 90)));
+  // Invalid options are one-line ConfigErrors.
+  EXPECT_THROW(
+      BuildLabeler(model, LoadConfig("normalization/log_softmax.yaml"), 6),
+      ConfigError);
+  ConfigNode bad = model;
+  bad.SetPath("label_encoder.num_heads", ConfigNode(int64_t{3}));
+  EXPECT_THROW(BuildLabeler(bad, norm, 6), ConfigError);
+  bad = model;
+  bad.SetPath("label_encoder.depth", ConfigNode(int64_t{3}));
+  EXPECT_THROW(BuildLabeler(bad, norm, 6), ConfigError);
+  // The plain model is unchanged: no label branch, a fixed head.
+  ConfigNode soma = LoadConfig("model/soma.yaml");
+  Labeler plain = BuildLabeler(soma, norm, 41);
+  EXPECT_FALSE(plain->conditioned());
+  EXPECT_EQ(CountTrainableParameters(*plain), 1425180 + 251 * 41);
+}
+
+}  // namespace
+}  // namespace soma
