@@ -438,6 +438,9 @@ struct FastLabeler::Impl {
 };
 
 bool FastLabeler::Supports(const LabelerImpl& model) {
+  // A layout-conditioned labeler scores against label embeddings instead of
+  // the fixed `head` (docs/any_layout_design.md, "Fast engine").
+  if (model.head.is_empty()) return false;
   const bool backbone =
       dynamic_cast<const SelfAttentionImpl*>(model.backbone.get()) != nullptr ||
       dynamic_cast<const Conv1dBackboneImpl*>(model.backbone.get()) != nullptr;

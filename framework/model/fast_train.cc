@@ -185,6 +185,15 @@ std::unique_ptr<FastTrainer> FastTrainer::Create(
     }
     return nullptr;
   }
+  if (model.head.is_empty()) {
+    if (why_not != nullptr) {
+      *why_not =
+          "a layout-conditioned labeller (model=soma_any_layout) scores points "
+          "against label embeddings, not a fixed score head; the fast engine "
+          "has no path for its label branch yet";
+    }
+    return nullptr;
+  }
   std::unique_ptr<fast::BackboneOp> backbone;
   std::unique_ptr<fast::NormalizationLossOp> norm;
   try {

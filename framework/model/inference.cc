@@ -65,9 +65,7 @@ FrameLabeler::FrameLabeler(std::shared_ptr<LabelerImpl> model,
   SOMA_CHECK(model_ != nullptr) << "FrameLabeler needs a model";
   options_.Validate();
   model_->eval();
-  // A layout-conditioned model has no fast forward yet (no fixed head).
-  if (options_.use_fast_path && !model_->conditioned() &&
-      FastLabeler::Supports(*model_)) {
+  if (options_.use_fast_path && FastLabeler::Supports(*model_)) {
     fast_ = std::make_unique<FastLabeler>(*model_);
   }
 }

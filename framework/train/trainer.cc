@@ -585,13 +585,7 @@ Trainer::Trainer(TrainerOptions options,
   SOMA_CHECK_EQ(static_cast<int64_t>(identity_.labels.size()),
                 model_->num_labels());
   CreateDirectories(run_dir_ / "checkpoints");
-  if (options_.engine == "fast" && model_->conditioned()) {
-    // The fast kernels need the fixed score head (`head`); the label branch
-    // has no fast path yet (docs/any_layout_design.md, "Fast engine").
-    SOMA_LOG(WARNING,
-             "train.engine=fast does not support model=soma_any_layout (label "
-             "branch); using torch");
-  } else if (options_.engine == "fast") {
+  if (options_.engine == "fast") {
     std::string why_not;
     FastTrainerOptions fast_options;
     if (options_.precision == "bf16") {

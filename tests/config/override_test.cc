@@ -24,7 +24,7 @@ ConfigNode List(std::vector<ConfigNode> items) {
   return list;
 }
 
-ConfigNode Map(std::vector<std::pair<std::string, ConfigNode>> entries) {
+ConfigNode Map(const std::vector<std::pair<std::string, ConfigNode>>& entries) {
   ConfigNode map = ConfigNode::EmptyMap();
   for (auto& [key, value] : entries) map.Set(key, std::move(value));
   return map;

@@ -66,9 +66,9 @@ TEST(AnyLayout, TrainsSavesLoadsAndLabelsTheBundledClip) {
             0);
   const std::string log = ReadFile(run / "soma.log");
   EXPECT_EQ(CountOccurrences(log,
-                             "train.engine=fast does not support "
-                             "model=soma_any_layout (label branch); using "
-                             "torch"),
+                             "train: engine=fast cannot train this model "
+                             "(a layout-conditioned labeller "
+                             "(model=soma_any_layout)"),
             1)
       << log;
 
