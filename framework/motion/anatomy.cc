@@ -132,11 +132,8 @@ const JointLimits& CoreJointLimits(int joint) {
     // Hip: flexion 120, extension 30, abduction 45, adduction 30, rotation 45.
     for (int j : {kLeftHip, kRightHip})
       l[j] = Limits(-30, 120, -30, 45, -45, 45);
-    // Knee: flexion 150. Active flexion is ~140 (Soucie 2011), deep squats
-    // and kneeling reach ~150-160 passively; the real HDM05 take's low walk
-    // on hands and feet bends the knees to 142-149 (90th percentile to
-    // maximum, from thigh, knee and ankle markers).
-    for (int j : {kLeftKnee, kRightKnee}) l[j] = Limits(0, 150, 0, 0, -5, 5);
+    // Knee: flexion 135 (Soucie 2011: ~ 140).
+    for (int j : {kLeftKnee, kRightKnee}) l[j] = Limits(0, 135, 0, 0, -5, 5);
     // Ankle: dorsiflexion 20, plantarflexion 50, inversion 35, eversion 15.
     for (int j : {kLeftAnkle, kRightAnkle})
       l[j] = Limits(-20, 50, -15, 35, -10, 10);

@@ -257,13 +257,13 @@ std::vector<Frame> BearWalk(const Clip& clip) {
   const double lean = clip.U(45, 75) * kDeg;  // trunk, total
   // Thigh angles in the world (from straight down, forward > 0) and knee
   // flexion of the front and rear poses: the rear thigh still points
-  // forward-down, so a 120-145 degree knee puts the foot behind on its toes
+  // forward-down, so a 120-135 degree knee puts the foot behind on its toes
   // and the knee near the floor. Pitching the pelvis forward turns the legs
   // back, so the hip flexes by the thigh angle plus the pitch (<= 120).
   const double thigh_front = clip.U(95, 110) * kDeg;
   const double thigh_rear = clip.U(45, 65) * kDeg;
   const double knee_front = clip.U(75, 95) * kDeg;
-  const double knee_rear = clip.U(120, 145) * kDeg;
+  const double knee_rear = clip.U(120, 135) * kDeg;
   const double hip_mid = 0.5 * (thigh_front + thigh_rear) + pitch;
   const double hip_amp = 0.5 * (thigh_front - thigh_rear);
   const double knee_mid = 0.5 * (knee_front + knee_rear);
