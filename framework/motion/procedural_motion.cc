@@ -46,6 +46,27 @@ double Smoothstep(double x) {
   return x * x * (3.0 - 2.0 * x);
 }
 
+/// The joints of one side of the body (0 = left, 1 = right), for generators
+/// that loop over the two sides.
+struct SideJoints {
+  int hip, knee, ankle, shoulder, elbow, wrist;
+};
+
+SideJoints Side(int side) {
+  return side == 0 ? SideJoints{kLeftHip,
+                                kLeftKnee,
+                                kLeftAnkle,
+                                kLeftShoulder,
+                                kLeftElbow,
+                                kLeftWrist}
+                   : SideJoints{kRightHip,
+                                kRightKnee,
+                                kRightAnkle,
+                                kRightShoulder,
+                                kRightElbow,
+                                kRightWrist};
+}
+
 Eigen::Quaterniond Yaw(double angle) {
   return Eigen::Quaterniond(Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitZ()));
 }
@@ -164,9 +185,8 @@ std::vector<Frame> Gait(const Clip& clip, bool run) {
     AnatomicalPose& p = f.angles;
     for (int side = 0; side < 2; ++side) {
       const double ph = phase + side * M_PI;
-      const int hip = side == 0 ? kLeftHip : kRightHip;
-      const int knee = side == 0 ? kLeftKnee : kRightKnee;
-      const int ankle = side == 0 ? kLeftAnkle : kRightAnkle;
+      const SideJoints joints = Side(side);
+      const int hip = joints.hip, knee = joints.knee, ankle = joints.ankle;
       p[hip].flexion = hip_amp * std::cos(ph) + (run ? 10 * kDeg : 0);
       // Knee flexes in swing (second half of the cycle), a little at loading.
       const double swing = std::max(0.0, std::sin(ph - M_PI * 0.95));
@@ -218,9 +238,8 @@ std::vector<Frame> CrouchWalk(const Clip& clip) {
     AnatomicalPose& p = f.angles;
     for (int side = 0; side < 2; ++side) {
       const double ph = phase + side * M_PI;
-      const int hip = side == 0 ? kLeftHip : kRightHip;
-      const int knee = side == 0 ? kLeftKnee : kRightKnee;
-      const int ankle = side == 0 ? kLeftAnkle : kRightAnkle;
+      const SideJoints joints = Side(side);
+      const int hip = joints.hip, knee = joints.knee, ankle = joints.ankle;
       const double swing = std::max(0.0, std::sin(ph - M_PI * 0.95));
       p[hip] = {hip_base + hip_amp * std::cos(ph), abduction, 0};
       p[knee].flexion = knee_base + knee_swing * swing;
@@ -286,12 +305,8 @@ std::vector<Frame> BearWalk(const Clip& clip) {
     AnatomicalPose& p = f.angles;
     for (int side = 0; side < 2; ++side) {
       const double ph = phase + side * M_PI;
-      const int hip = side == 0 ? kLeftHip : kRightHip;
-      const int knee = side == 0 ? kLeftKnee : kRightKnee;
-      const int ankle = side == 0 ? kLeftAnkle : kRightAnkle;
-      const int shoulder = side == 0 ? kLeftShoulder : kRightShoulder;
-      const int elbow_joint = side == 0 ? kLeftElbow : kRightElbow;
-      const int wrist_joint = side == 0 ? kLeftWrist : kRightWrist;
+      const auto [hip, knee, ankle, shoulder, elbow_joint, wrist_joint] =
+          Side(side);
       p[hip] = {hip_mid + hip_amp * std::cos(ph), abduction, 0};
       p[knee].flexion = knee_mid - knee_amp * std::cos(ph);
       p[ankle].flexion = ankle_base + 15 * kDeg * std::cos(ph);
