@@ -265,9 +265,10 @@ std::vector<Frame> CrouchWalk(const Clip& clip) {
 /// 90 degrees, the foot planted ahead) and a rear pose (thigh down, knee
 /// deeply flexed and dropped towards the floor, the foot behind), so hip and
 /// knee flexion move in opposite directions, unlike upright or crouched
-/// gait. The trunk is pitched 35-65 degrees and the arms reach down to the
-/// floor, each stepping with the opposite leg; the pelvis stays 0.35-0.6 m
-/// above the floor. crouch_walk keeps the hands off the floor and its knees
+/// gait. The trunk is pitched 45-75 degrees and the arms reach down towards
+/// the floor, each stepping with the opposite leg; the pelvis joint stays
+/// ~0.55-0.65 m above the floor on average (the real take's waist markers:
+/// 0.37-0.56 m). crouch_walk keeps the hands off the floor and its knees
 /// bend with the hips; crawl kneels on the floor.
 std::vector<Frame> BearWalk(const Clip& clip) {
   const double speed = clip.U(0.1, 0.7);      // m/s
