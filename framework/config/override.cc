@@ -362,6 +362,25 @@ std::string EscapeDictKey(std::string_view key) {
   return out;
 }
 
+// An unquoted value with its special characters backslash-escaped, complete
+// interpolations copied verbatim (the lexer reads them whole, as in the
+// unquoted input they came from: `${a:'b c'}` keeps its quotes and space).
+std::string EscapeUnquoted(std::string_view text) {
+  std::string out;
+  size_t i = 0;
+  while (i < text.size()) {
+    if (const size_t n = MatchInterpolation(text, i)) {
+      out.append(text.substr(i, n));
+      i += n;
+      continue;
+    }
+    if (IsEscapable(text[i])) out.push_back('\\');
+    out.push_back(text[i]);
+    ++i;
+  }
+  return out;
+}
+
 std::string FormatString(const ConfigNode& node, bool top_level) {
   const std::string& text = node.text();
   if (text.empty()) return top_level ? std::string() : std::string("''");
@@ -380,7 +399,7 @@ std::string FormatString(const ConfigNode& node, bool top_level) {
   for (size_t i = 0; i + 1 < text.size(); ++i) {
     if (text[i] == '$' && text[i + 1] == '{' &&
         MatchInterpolation(text, i) == 0) {
-      std::string escaped = EscapeDictKey(text);
+      std::string escaped = EscapeUnquoted(text);
       const std::optional<ConfigNode> back = TryParseStandaloneValue(escaped);
       if (back && back->type() == node.type() && back->text() == text) {
         return escaped;

@@ -511,6 +511,8 @@ std::string YamlScalar(const ConfigNode& node, bool escape_interpolations) {
 constexpr size_t kMaxImplicitKeyBytes = 1024;
 
 std::string YamlKey(const std::string& key) {
+  // A plain `<<` reads back as a merge key, not as a key of that name.
+  if (key == "<<") return SingleQuote(key);
   return QuoteIfNeeded(key, ConfigNode::LiteralString(key));
 }
 

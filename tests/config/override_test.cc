@@ -901,6 +901,22 @@ TEST(OverrideToString, WritesAnUnclosedInterpolationOpenerEscaped) {
   EXPECT_EQ(*again.value, *o.value);
 }
 
+// Found by the CI run of the override fuzzer (tests/fuzz/corpus/override/):
+// the escaped form of a string holding an unclosed `${` must keep its
+// complete interpolations verbatim (`${x' }` contains a quote, which an
+// unquoted value can only hold inside an interpolation); escaping their
+// braces made it unparsable and the quoted fallback read `${c:'}` through
+// the closing quote.
+TEST(OverrideToString, EscapesAroundCompleteInterpolationsOfAnUnclosedOpener) {
+  const Override o = ParseOverride(R"(d={a:\{i ${x' }:f$\{c:})");
+  ASSERT_TRUE(o.value.has_value());
+  EXPECT_EQ(o.value->at("a").text(), "{i ${x' }:f${c:");
+  EXPECT_EQ(o.ToString(), R"(d={a:\{i\ ${x' }\:f$\{c\:})");
+  const Override again = ParseOverride(o.ToString());
+  ASSERT_TRUE(again.value.has_value());
+  EXPECT_EQ(*again.value, *o.value);
+}
+
 TEST(OverrideToString, IsCanonical) {
   const std::vector<std::pair<std::string, std::string>> cases = {
       {"a=1", "a=1"},

@@ -459,6 +459,17 @@ TEST(DumpYaml, KeysOverTheImplicitKeyLimitAreExplicit) {
   EXPECT_EQ(DumpYaml(parsed), dumped);
 }
 
+// Found by the config fuzzer (tests/fuzz/corpus/config/): the key `<<` of
+// a tagged scalar (`!name<<: {a}`) is not a merge key, but written plain it
+// read back as one.
+TEST(DumpYaml, QuotesAKeyNamedLikeTheMergeKey) {
+  const ConfigNode root = ParseYaml("job:\n  !name<<: {a}\n", "t.yaml");
+  ASSERT_TRUE(root.at("job").Has("<<"));
+  const std::string dumped = DumpYaml(root);
+  EXPECT_EQ(dumped, "job:\n  '<<':\n    a: null\n");
+  EXPECT_EQ(ParseYaml(dumped, "dumped.yaml"), root);
+}
+
 TEST(DumpYaml, ScalarsAndEmptyRoots) {
   EXPECT_EQ(DumpYaml(ConfigNode::EmptyMap()), "{}\n");
   EXPECT_EQ(DumpYaml(ConfigNode::EmptyList()), "[]\n");
