@@ -361,6 +361,10 @@ bool NeedsQuotes(std::string_view text) {
       text.back() == '\t') {
     return true;
   }
+  // Bytes a YAML reader takes for a byte-order mark (UTF-16/32, or UTF-8's
+  // EF BB BF) when they start the document.
+  const auto first = static_cast<unsigned char>(text.front());
+  if (first == 0xfe || first == 0xff || first == 0xef) return true;
   constexpr std::string_view kIndicators = "?:,[]{}#&*!|>'\"%@`";
   if (kIndicators.find(text.front()) != std::string_view::npos) return true;
   if (text.front() == '-' && (text.size() == 1 || text[1] == ' ')) return true;

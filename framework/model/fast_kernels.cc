@@ -192,7 +192,7 @@ constexpr MicroKernelFn KernelFor(int panels) {
   return panels == 1   ? &MicroKernel<R, 1>
          : panels == 2 ? &MicroKernel<R, 2>
          : panels == 3 ? &MicroKernel<R, 3>
-                       : &MicroKernel<(R < 6 ? R : 6), 4>;
+                       : &MicroKernel<std::min(R, 6), 4>;
 }
 
 MicroKernelFn SelectKernel(int rows, int panels) {

@@ -470,6 +470,20 @@ TEST(DumpYaml, QuotesAKeyNamedLikeTheMergeKey) {
   EXPECT_EQ(ParseYaml(dumped, "dumped.yaml"), root);
 }
 
+// Found by an exploratory config-fuzzer session (tests/fuzz/corpus/config/):
+// a first key starting with FE FF was written plain at the start of the
+// document, where a YAML reader takes it for a UTF-16 byte-order mark.
+TEST(DumpYaml, QuotesScalarsStartingWithByteOrderMarkBytes) {
+  for (const std::string key : {"\xfe\xff\xff\xc9", "\xff\xfeab", "\xef\xbb\xbfk"}) {
+    ConfigNode root;
+    root.Set(key, "local");
+    root.Set("b", key);
+    const std::string dumped = DumpYaml(root);
+    EXPECT_EQ(dumped.front(), '\'') << dumped;
+    EXPECT_EQ(ParseYaml(dumped, "dumped.yaml"), root) << dumped;
+  }
+}
+
 TEST(DumpYaml, ScalarsAndEmptyRoots) {
   EXPECT_EQ(DumpYaml(ConfigNode::EmptyMap()), "{}\n");
   EXPECT_EQ(DumpYaml(ConfigNode::EmptyList()), "[]\n");
