@@ -59,6 +59,7 @@ AblationVariant ParseVariant(const ConfigNode& node,
   reader.Read("label", &v.label);
   reader.Read("overrides", &v.overrides);
   reader.Read("skip", &v.skip);
+  reader.Read("skip_if_budget_sets", &v.skip_if_budget_sets);
   reader.Read("tests", &v.tests);
   for (const std::string& test : v.tests) {
     reader.Check("tests", tests.count(test) > 0, "names of tests of this spec");
@@ -183,6 +184,20 @@ const AblationTest& AblationSpec::Test(const std::string& t) const {
     if (test.name == t) return test;
   }
   throw InternalError(fmt::format("ablation {}: no test '{}'", name, t));
+}
+
+AblationSpec ApplyBudget(AblationSpec spec,
+                         const std::vector<std::string>& budget) {
+  for (AblationVariant& v : spec.variants) {
+    if (v.skip.empty() && !v.skip_if_budget_sets.empty() &&
+        BudgetSets(budget, v.skip_if_budget_sets)) {
+      v.skip = fmt::format(
+          "not trained: task.budget sets `{}` for every row, which this row "
+          "varies",
+          v.skip_if_budget_sets);
+    }
+  }
+  return spec;
 }
 
 bool AblationDifference::AppliesTo(

@@ -37,6 +37,10 @@ struct AblationVariant {
   std::vector<std::string> overrides;
   /// Non-empty: this row cannot run here; the reason is printed instead.
   std::string skip;
+  /// Non-empty: the row is skipped when the budget sets this key (an
+  /// override `<key>=...` or `<key>.<sub>=...`): a row that varies what the
+  /// budget already fixes for every row (ApplyBudget).
+  std::string skip_if_budget_sets;
   /// The tests this variant is evaluated on; empty: every test.
   std::vector<std::string> tests;
   /// test name -> metric -> the paper's value.
@@ -113,6 +117,11 @@ struct AblationSpec {
   const AblationVariant& Variant(const std::string& name) const;
   const AblationTest& Test(const std::string& name) const;
 };
+
+/// `spec` as run under `budget`: each variant whose skip_if_budget_sets key
+/// the budget sets is skipped, with the reason.
+AblationSpec ApplyBudget(AblationSpec spec,
+                         const std::vector<std::string>& budget);
 
 /// Decodes and validates a spec (unknown keys, duplicate names, claims naming
 /// unknown variants/tests/metrics: ConfigError naming `source` and the key).

@@ -52,8 +52,9 @@ class ReproduceTask : public Task {
       : options_(std::move(options)) {}
 
   void Run(const ConfigNode&, RunContext& ctx) override {
-    const AblationSpec spec =
-        LoadAblationSpec(options_.ablation, LocateDir(options_.ablations_dir));
+    const AblationSpec spec = ApplyBudget(
+        LoadAblationSpec(options_.ablation, LocateDir(options_.ablations_dir)),
+        options_.reproduction.budget);
     ReproductionOptions reproduction = options_.reproduction;
     reproduction.executable = CurrentExecutable();
     // hydra/launcher=slurm: the models go to SLURM, each training with the

@@ -474,7 +474,8 @@ TEST(DumpYaml, QuotesAKeyNamedLikeTheMergeKey) {
 // a first key starting with FE FF was written plain at the start of the
 // document, where a YAML reader takes it for a UTF-16 byte-order mark.
 TEST(DumpYaml, QuotesScalarsStartingWithByteOrderMarkBytes) {
-  for (const std::string key : {"\xfe\xff\xff\xc9", "\xff\xfeab", "\xef\xbb\xbfk"}) {
+  for (const std::string key :
+       {"\xfe\xff\xff\xc9", "\xff\xfeab", "\xef\xbb\xbfk"}) {
     ConfigNode root;
     root.Set(key, "local");
     root.Set("b", key);

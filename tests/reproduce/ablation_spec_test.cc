@@ -37,6 +37,9 @@ variants:
     overrides: [normalization=log_softmax]
   - name: no_real
     skip: "needs the solver"
+  - name: target_layout
+    overrides: [layout=file, layout.path=x.json]
+    skip_if_budget_sets: layout
 claims:
   - {text: "Sinkhorn helps", test: hdm05, better: base, worse: log_softmax}
   - {text: "robust", test: hdm05, worse_test: occ5, kind: close,
@@ -73,10 +76,12 @@ TEST(AblationSpecTest, ParsesEveryField) {
               ElementsAre("layout.exclude=[RBAC,LSHN]"));
   EXPECT_THAT(spec.Test("occ5").eval_overrides,
               ElementsAre("task.unknown_gt_labels=ghost"));
-  ASSERT_EQ(spec.variants.size(), 3u);
+  ASSERT_EQ(spec.variants.size(), 4u);
   EXPECT_THAT(spec.Variant("log_softmax").overrides,
               ElementsAre("normalization=log_softmax"));
   EXPECT_EQ(spec.Variant("no_real").skip, "needs the solver");
+  EXPECT_EQ(spec.Variant("target_layout").skip_if_budget_sets, "layout");
+  EXPECT_TRUE(spec.Variant("target_layout").skip.empty());
   EXPECT_TRUE(spec.Variant("base").tests.empty());
   EXPECT_TRUE(spec.Variant("base").Evaluates("occ5"));
   AblationVariant only_occ5;
@@ -112,6 +117,19 @@ TEST(AblationSpecTest, ConditionalDifferencesFollowTheBudget) {
   // Only the key itself: `layouts=...` or `layout_seed=...` do not set it.
   EXPECT_THAT(texts({"layouts=[a]", "layout_seed=3"}),
               ElementsAre("smaller model", "cmu41 layout"));
+}
+
+// A row that varies what the budget fixes for every row would train the
+// same models as another row: it is skipped, with the reason.
+TEST(AblationSpecTest, RowsVaryingWhatTheBudgetSetsAreSkipped) {
+  const AblationSpec quick = ApplyBudget(Parse(kSpec), {"scale=cpu"});
+  EXPECT_TRUE(quick.Variant("target_layout").skip.empty());
+  const AblationSpec fitted =
+      ApplyBudget(Parse(kSpec), {"scale=cpu", "layout.path=y.json"});
+  EXPECT_THAT(fitted.Variant("target_layout").skip,
+              HasSubstr("task.budget sets `layout`"));
+  EXPECT_TRUE(fitted.Variant("base").skip.empty());
+  EXPECT_EQ(fitted.Variant("no_real").skip, "needs the solver");
 }
 
 TEST(AblationSpecTest, BadSpecsAreOneLineConfigErrors) {
