@@ -9,7 +9,10 @@
 #             and tests/fuzz/corpus/config/
 #   frame_protocol  the `soma stream` frame/hello/label packet decoders,
 #             seeded with tests/fuzz/corpus/frame_protocol/
-# The growing corpus is kept in build-fuzz/<target>_corpus.
+# An exploratory session (no seed) keeps its growing corpus in
+# build-fuzz/<target>_corpus; a fixed-seed run starts from the committed seeds
+# alone (build-fuzz/<target>_corpus_fixed, emptied first), so that a corpus an
+# earlier session grew on the machine does not change what it explores.
 #
 #   scripts/fuzz.sh <target> [seconds=60] [seed]
 #
@@ -86,6 +89,10 @@ fi
 
 seeds="$build/${target}_seeds"
 corpus="$build/${target}_corpus"
+if [[ -n "${3:-}" ]]; then
+  corpus="$build/${target}_corpus_fixed"
+  rm -rf "$corpus"
+fi
 artifacts="$build/${target}_artifacts/"
 rm -rf "$seeds"
 mkdir -p "$seeds" "$corpus" "$artifacts"
