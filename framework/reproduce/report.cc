@@ -176,6 +176,9 @@ std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
                 : std::abs(std::abs(*outcome.gap) - claim.tolerance);
         outcome.within_noise = margin < 2 * *outcome.gap_se;
       }
+    } else if (!spec.Variant(claim.better).skip.empty() ||
+               !spec.Variant(claim.worse).skip.empty()) {
+      outcome.verdict = "skipped";  // a row this reproduction does not train
     } else {
       outcome.verdict = "not run";
     }
@@ -296,6 +299,7 @@ ClaimCounts CountClaims(const std::vector<ClaimOutcome>& outcomes,
     counts.pass += outcome.verdict == "pass";
     counts.fail += outcome.verdict == "fail";
     counts.not_run += outcome.verdict == "not run";
+    counts.skipped += outcome.verdict == "skipped";
     counts.within_noise += outcome.gap && outcome.within_noise;
   }
   return counts;
@@ -312,6 +316,7 @@ std::string ClaimsSummary(const std::vector<ClaimOutcome>& outcomes) {
     std::string text =
         fmt::format("{} {} ({} pass, {} fail", c.claims, name, c.pass, c.fail);
     if (c.not_run > 0) text += fmt::format(", {} not run", c.not_run);
+    if (c.skipped > 0) text += fmt::format(", {} skipped", c.skipped);
     text += fmt::format("; {} within seed noise)", c.within_noise);
     parts.push_back(text);
   }

@@ -56,7 +56,7 @@ struct ClaimOutcome {
   std::optional<double> gap_se;
   bool paired = false;              // gap_se is the paired one
   std::optional<double> paper_gap;  // the paper's, when known
-  std::string verdict;              // pass | fail | not run
+  std::string verdict;  // pass | fail | not run | skipped (a skipped row)
   /// The verdict is not resolved by this many seeds: the claim's boundary
   /// (0 for greater, ±tolerance for close) lies within 2 standard errors of
   /// the gap, so a rerun with other seeds could flip it.
@@ -74,6 +74,7 @@ struct ClaimCounts {
   int pass = 0;
   int fail = 0;
   int not_run = 0;
+  int skipped = 0;       // a claim on a row this reproduction skips
   int within_noise = 0;  // verdicts (pass or fail) within seed noise
 };
 

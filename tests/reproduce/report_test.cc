@@ -125,6 +125,23 @@ TEST(ReportTest, ClaimsAreCheckedWithTheirGaps) {
   EXPECT_DOUBLE_EQ(*out[3].paper_gap, 1.0);
 }
 
+// A claim on a row the reproduction does not train (skip, or
+// skip_if_budget_sets under this budget) is "skipped", not pending.
+TEST(ReportTest, ClaimsOnASkippedRowAreSkippedNotPending) {
+  AblationSpec spec = Spec();
+  AblationClaim claim = spec.claims[0];
+  claim.text = "no_bank beats base";
+  claim.better = "no_bank";
+  spec.claims = {claim, spec.claims[3]};
+  const std::vector<ClaimOutcome> out = CheckClaims(spec, Cells());
+  ASSERT_EQ(out.size(), 2u);
+  EXPECT_EQ(out[0].verdict, "skipped");
+  EXPECT_EQ(out[1].verdict, "not run");
+  EXPECT_EQ(CountClaims(out, "paper").skipped, 1);
+  EXPECT_THAT(ClaimsSummary(out), HasSubstr("0 fail, 1 skipped;"));
+  EXPECT_THAT(ClaimsSummary(out), HasSubstr("0 fail, 1 not run;"));
+}
+
 TEST(ReportTest, CloseClaimFailsOutsideItsTolerance) {
   std::vector<CellResult> cells = Cells();
   cells[1] = Cell("base", "t5", {90.0, 91.0, 92.0});
