@@ -45,6 +45,10 @@ class BatchSource {
   int num_labels() const { return static_cast<int>(labels().size()); }
   /// N, points per frame.
   virtual int num_points() const = 0;
+  /// The slot table its frames' LabeledFrames::slots index (a
+  /// layout-sampled source for a layout-conditioned labeller), or null
+  /// when the frames carry no slots.
+  virtual const SlotTable* slot_table() const { return nullptr; }
   /// Frames available in one epoch.
   virtual int64_t frames_per_epoch() const = 0;
   /// Frames [begin, begin + count) of epoch `epoch`'s order into `out`
@@ -111,6 +115,7 @@ class SynthBatchSource : public BatchSource {
   ~SynthBatchSource() override;
   const std::vector<std::string>& labels() const override;
   int num_points() const override;
+  const SlotTable* slot_table() const override;
   int64_t frames_per_epoch() const override { return frames_per_epoch_; }
   void Read(int epoch,
             int64_t begin,
