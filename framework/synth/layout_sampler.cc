@@ -82,6 +82,9 @@ LayoutDraw BuiltinLayoutSampler::Draw(uint64_t seed, int64_t block) const {
   Rng rng = Rng(seed).Stream("layout").Stream(static_cast<uint64_t>(block));
   LayoutDraw draw;
   draw.layout = static_cast<int>(rng.UniformInt(0, num_layouts() - 1));
+  if (options_.cycle_layouts) {
+    draw.layout = static_cast<int>(block % num_layouts());
+  }
   const int k = layouts_[draw.layout].num_markers();
   draw.slot_marker.assign(options_.max_labels, -1);
   if (options_.shuffle_slots) {

@@ -37,7 +37,10 @@ struct LayoutSamplerOptions {
   int max_labels = 96;        // L_max, label slots per frame
   int block_size = 32;        // frames per placement block (REFERENCE 3.3)
   bool shuffle_slots = true;  // random slot order per block
-  void Validate() const;      // ConfigError on violation
+  /// Block b gets layout b mod K instead of a uniform draw (validation: every
+  /// layout gets an equal share of a fixed set of frames).
+  bool cycle_layouts = false;
+  void Validate() const;  // ConfigError on violation
 };
 
 /// Decodes a `synth.layout_sampler` node (`name: builtin`, `layouts`,

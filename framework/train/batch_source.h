@@ -30,6 +30,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace soma {
@@ -77,9 +78,15 @@ class InMemoryBatchSource : public BatchSource {
             int64_t count,
             LabeledFrames* out) const override;
   const LabeledFrames& frames() const { return frames_; }
+  /// The table the frames' slots index (frames with LabeledFrames::slots).
+  void SetSlotTable(SlotTable table) { slot_table_ = std::move(table); }
+  const SlotTable* slot_table() const override {
+    return frames_.num_slots > 0 ? &slot_table_ : nullptr;
+  }
 
  private:
   LabeledFrames frames_;
+  SlotTable slot_table_;
   std::vector<std::string> labels_;
   bool shuffle_;
   uint64_t seed_;

@@ -1,7 +1,9 @@
 // model=soma_any_layout end to end (issue #25 item 1, first slice): `soma
 // train` on the synthesizer's layout with the fast engine requested (it falls
 // back to torch with one log line), the checkpoint holds the layout's label
-// slots and loads, and `soma label` labels the bundled clip with it.
+// slots and loads, and `soma label` labels the bundled clip with it. Second
+// slice: training with a layout per placement block
+// (synth/layout_sampler=builtin), resumed, recorded in the checkpoint.
 #include "framework/body/marker_layout.h"
 #include "framework/body/procedural_body.h"
 #include "framework/config/app.h"
@@ -107,6 +109,82 @@ TEST(AnyLayout, TrainsSavesLoadsAndLabelsTheBundledClip) {
   EXPECT_EQ(labeled.num_frames, 600);
   ASSERT_GE(labeled.num_points, 41);
   EXPECT_EQ(labeled.labels[0], "C7");  // the checkpoint's label order
+}
+
+std::vector<std::string> SampledTrainArgs(const fs::path& run, int epochs) {
+  return {"task=train",
+          "model=soma_any_layout",
+          "synth/layout_sampler=builtin",
+          "scale=cpu",
+          "hydra.run.dir=" + run.string(),
+          "model.d_model=16",
+          "model.hidden=16",
+          "model.backbone.num_layers=1",
+          "model.backbone.num_heads=2",
+          "model.label_encoder.num_heads=2",
+          "model.label_encoder.num_layers=1",
+          "normalization.num_iters=5",
+          "train.batch_size=16",
+          "train.train_frames=64",
+          "train.val_frames=128",
+          "train.max_epochs=" + std::to_string(epochs),
+          "train.progress=false",
+          "threads=1"};
+}
+
+TEST(AnyLayout, TrainsOnALayoutPerPlacementBlockAndResumes) {
+  const fs::path dir = testing::CreateTestDir();
+  const fs::path run = dir / "train";
+  const std::string configs = (testing::SourceDir() / "configs").string();
+  ASSERT_EQ(RunHydraApp(
+                SampledTrainArgs(run, 1), configs, "config", RunConfiguredTask),
+            0);
+  const std::string log = ReadFile(run / "soma.log");
+  EXPECT_THAT(log,
+              ::testing::HasSubstr("96 label slots, a layout per placement "
+                                   "block sampled from [cmu41, pig39, "
+                                   "soma53]"));
+  // Validation accuracy per layout, one line per epoch.
+  EXPECT_EQ(CountOccurrences(log,
+                             "epoch 1 validation accuracy per layout: "
+                             "cmu41 "),
+            1)
+      << log;
+
+  // The checkpoint: a conditioned labeler over 96 slots, no stored layout
+  // (each batch brought its own), the sampler recorded with the model.
+  const fs::path best = run / "checkpoints" / "best.pt";
+  const CheckpointInfo info = ReadCheckpointInfo(best);
+  const ConfigNode* sampler = info.model_config.Find("layout_sampler");
+  ASSERT_NE(sampler, nullptr);
+  EXPECT_EQ(sampler->at("name").AsString(), "builtin");
+  EXPECT_EQ(info.labels.size(), 96u);
+  const Labeler model = LoadLabelerFromCheckpoint(best);
+  ASSERT_TRUE(model->conditioned());
+  EXPECT_EQ(model->num_labels(), 96);
+  EXPECT_FALSE(model->layout_descriptors.ne(0).any().item<bool>());
+
+  // Resumes in the same run dir.
+  ASSERT_EQ(RunHydraApp(
+                SampledTrainArgs(run, 2), configs, "config", RunConfiguredTask),
+            0);
+  const std::string metrics = ReadFile(run / "metrics.csv");
+  EXPECT_EQ(std::count(metrics.begin(), metrics.end(), '\n'), 3) << metrics;
+  EXPECT_THAT(ReadFile(run / "soma.log"),
+              ::testing::HasSubstr("train: resumed from"));
+
+  // A fixed-head model cannot train on sampled layouts: one line, non-zero.
+  std::vector<std::string> fixed = SampledTrainArgs(dir / "fixed", 1);
+  fixed[1] = "model=soma";
+  fixed.erase(std::remove_if(fixed.begin(),
+                             fixed.end(),
+                             [](const std::string& a) {
+                               return a.rfind("model.label_encoder", 0) == 0;
+                             }),
+              fixed.end());
+  EXPECT_NE(RunHydraApp(fixed, configs, "config", RunConfiguredTask), 0);
+  EXPECT_THAT(ReadFile(dir / "fixed" / "soma.log"),
+              ::testing::HasSubstr("use model=soma_any_layout"));
 }
 
 }  // namespace

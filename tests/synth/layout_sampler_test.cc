@@ -124,5 +124,14 @@ TEST(BuiltinLayoutSampler, SlotRowsIndexTheSlotTable) {
   }
 }
 
+TEST(BuiltinLayoutSampler, CycledLayoutsTakeTurns) {
+  LayoutSamplerOptions options;
+  options.cycle_layouts = true;
+  const BuiltinLayoutSampler sampler(ProceduralBody(), options);
+  for (int64_t block = 0; block < 9; ++block) {
+    EXPECT_EQ(sampler.Draw(4, block).layout, block % 3) << block;
+  }
+}
+
 }  // namespace
 }  // namespace soma
