@@ -3,7 +3,8 @@
 // back to torch with one log line), the checkpoint holds the layout's label
 // slots and loads, and `soma label` labels the bundled clip with it. Second
 // slice: training with a layout per placement block
-// (synth/layout_sampler=builtin), resumed, recorded in the checkpoint.
+// (synth/layout_sampler=builtin), resumed, recorded in the checkpoint; and
+// `soma label` / `soma label_eval` with a layout given at label time.
 #include "framework/body/marker_layout.h"
 #include "framework/body/procedural_body.h"
 #include "framework/config/app.h"
@@ -185,6 +186,95 @@ TEST(AnyLayout, TrainsOnALayoutPerPlacementBlockAndResumes) {
   EXPECT_NE(RunHydraApp(fixed, configs, "config", RunConfiguredTask), 0);
   EXPECT_THAT(ReadFile(dir / "fixed" / "soma.log"),
               ::testing::HasSubstr("use model=soma_any_layout"));
+}
+
+TEST(AnyLayout, LabelsWithALayoutGivenAtLabelTime) {
+  const fs::path dir = testing::CreateTestDir();
+  const std::string configs = (testing::SourceDir() / "configs").string();
+  // A conditioned model with 60 slots trained on sampled layouts, and a
+  // fixed-head model trained on cmu41 (one tiny epoch each).
+  std::vector<std::string> sampled = SampledTrainArgs(dir / "sampled", 1);
+  sampled.push_back("synth.layout_sampler.max_labels=60");
+  ASSERT_EQ(RunHydraApp(sampled, configs, "config", RunConfiguredTask), 0);
+  std::vector<std::string> fixed = SampledTrainArgs(dir / "fixed", 1);
+  fixed[1] = "model=soma";
+  fixed.erase(std::remove_if(fixed.begin(),
+                             fixed.end(),
+                             [](const std::string& a) {
+                               return a.rfind("model.label_encoder", 0) == 0 ||
+                                      a.rfind("synth/layout_sampler", 0) == 0;
+                             }),
+              fixed.end());
+  ASSERT_EQ(RunHydraApp(fixed, configs, "config", RunConfiguredTask), 0);
+  const fs::path clip = testing::SourceDir() / "data" / "cmu_01_01_f0-599.c3d";
+  auto label = [&](const std::string& run,
+                   const fs::path& model,
+                   const std::string& layout,
+                   std::string* err) {
+    std::vector<std::string> args = {
+        "label",
+        "hydra.run.dir=" + run,
+        "task.input=" + clip.string(),
+        "task.checkpoint=" + (model / "checkpoints/best.pt").string()};
+    if (!layout.empty()) args.push_back(layout);
+    return testing::RunSomaTask(dir, args, err);
+  };
+  const BodyModel body = MakeProceduralBody();
+  std::string err;
+  for (const std::string layout : {"pig39", "cmu41"}) {
+    SCOPED_TRACE(layout);
+    ASSERT_EQ(label(layout, dir / "sampled", "layout=" + layout, &err), 0)
+        << err;
+    EXPECT_EQ(CountOccurrences(
+                  ReadFile(dir / layout / "soma.log"),
+                  "label: layout '" + layout + "' (" + layout.substr(3) +
+                      " labels, given at label time) on the checkpoint's "
+                      "body 'procedural', for a layout-conditioned model "
+                      "with 60 label slots"),
+              1);
+    // The labelled trajectories are that layout's labels, in its order.
+    const C3dData labeled =
+        ReadC3d(dir / layout / "cmu_01_01_f0-599_labeled.c3d");
+    EXPECT_EQ(labeled.num_frames, 600);
+    const std::vector<std::string> expected =
+        MakeBuiltinLayout(body, layout).Labels();
+    ASSERT_GE(labeled.labels.size(), expected.size());
+    EXPECT_EQ(std::vector<std::string>(
+                  labeled.labels.begin(),
+                  labeled.labels.begin() +
+                      static_cast<std::ptrdiff_t>(expected.size())),
+              expected);
+  }
+  // label_eval with a layout given at label time: the take is scored on
+  // that layout's labels.
+  ASSERT_EQ(testing::RunSomaTask(
+                dir,
+                {"label_eval",
+                 "hydra.run.dir=eval",
+                 "task.input=" + clip.string(),
+                 "task.checkpoint=" +
+                     (dir / "sampled" / "checkpoints/best.pt").string(),
+                 "layout=cmu41"},
+                &err),
+            0)
+      << err;
+  const C3dData evaluated =
+      ReadC3d(dir / "eval" / "per_frame" / "cmu_01_01_f0-599_labeled.c3d");
+  EXPECT_EQ(evaluated.labels[0], MakeBuiltinLayout(body, "cmu41").Labels()[0]);
+
+  // A layout larger than the model's slots: one line, non-zero, both counts.
+  EXPECT_NE(label("big", dir / "sampled", "layout=superset89", &err), 0);
+  EXPECT_THAT(err,
+              ::testing::HasSubstr("layout 'superset89' has 89 labels, more "
+                                   "than the 60 label slots of checkpoint"));
+  // A fixed-head model and another layout: refused, naming both.
+  EXPECT_NE(label("fixed_pig", dir / "fixed", "layout=pig39", &err), 0);
+  EXPECT_THAT(err,
+              ::testing::HasSubstr("layout 'pig39' (39 labels) differs from "
+                                   "the layout 'cmu41' (41 labels) that "
+                                   "checkpoint"));
+  // ... its own layout given explicitly is fine.
+  EXPECT_EQ(label("fixed_cmu", dir / "fixed", "layout=cmu41", &err), 0) << err;
 }
 
 }  // namespace
