@@ -487,7 +487,9 @@ TEST(Synthesizer, LayoutSamplerLabelsEachBlockWithItsOwnLayoutsSlots) {
       const bool present = x[0] != 0 || x[1] != 0 || x[2] != 0;
       ASSERT_GE(label, 0);
       ASSERT_LE(label, 60);
-      if (!present) ASSERT_EQ(label, 60);
+      if (!present) {
+        ASSERT_EQ(label, 60);
+      }
       if (label == 60) continue;
       // A label is a slot of this block's draw, a row of its own layout.
       ASSERT_GE(rows[label], 0) << "frame " << f << " slot " << label;
@@ -513,6 +515,7 @@ TEST(Synthesizer, LayoutSamplerPlacesTheDrawnLayoutsMarkers) {
   const BuiltinLayoutSampler& sampler = *sampled.layout_sampler();
   const SlotTable& table = *sampled.slot_table();
   std::vector<Synthesizer> fixed;
+  fixed.reserve(static_cast<size_t>(sampler.num_layouts()));
   for (int k = 0; k < sampler.num_layouts(); ++k) {
     fixed.push_back(
         MakeSynthesizer(no_noise, fixed_options, {sampler.layout(k)}));
@@ -545,9 +548,10 @@ TEST(Synthesizer, LayoutSamplerPlacesTheDrawnLayoutsMarkers) {
         if (one.frame_labels(0)[q] == id) at = q;
       }
       ASSERT_GE(at, 0) << name;
-      ASSERT_EQ(std::memcmp(x, one.frame_points(0) + 3 * at, 3 * sizeof(float)),
-                0)
-          << "frame " << f << " marker " << name;
+      for (int c = 0; c < 3; ++c) {  // exactly the same coordinates
+        ASSERT_EQ(x[c], one.frame_points(0)[3 * at + c])
+            << "frame " << f << " marker " << name;
+      }
       ++labelled;
     }
     ASSERT_EQ(labelled, k);
