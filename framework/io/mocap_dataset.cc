@@ -31,12 +31,20 @@ void LabeledFrames::Resize(int64_t frames, int points_per_frame) {
   num_points = points_per_frame;
   points.resize(static_cast<size_t>(frames * points_per_frame * 3));
   labels.resize(static_cast<size_t>(frames * points_per_frame));
+  slots.resize(static_cast<size_t>(frames * num_slots));
 }
 
 void LabeledFrames::Append(const LabeledFrames& other) {
   if (other.num_frames() == 0 && other.labels.empty()) return;
   if (num_frames() == 0 && labels.empty()) {
     num_points = other.num_points;
+    num_slots = other.num_slots;
+  } else if (other.num_slots != num_slots) {
+    throw ShapeError(fmt::format(
+        "LabeledFrames::Append: frames with {} label slots appended to frames "
+        "with {} label slots",
+        other.num_slots,
+        num_slots));
   } else if (other.num_points != num_points) {
     throw ShapeError(fmt::format(
         "LabeledFrames::Append: frames with {} points appended to frames "
@@ -46,6 +54,7 @@ void LabeledFrames::Append(const LabeledFrames& other) {
   }
   points.insert(points.end(), other.points.begin(), other.points.end());
   labels.insert(labels.end(), other.labels.begin(), other.labels.end());
+  slots.insert(slots.end(), other.slots.begin(), other.slots.end());
 }
 
 namespace {
@@ -402,6 +411,12 @@ void DatasetWriter::Append(const LabeledFrames& frames) {
   }
   const int64_t count = frames.num_frames();
   if (count == 0) return;
+  if (frames.num_slots != 0) {
+    throw ShapeError(fmt::format(
+        "{}: frames with per-frame label slots (a layout-sampled stream, "
+        "synth.layout_sampler) cannot be stored in a dataset yet",
+        s.name));
+  }
   if (frames.num_points != s.info.num_points) {
     throw ShapeError(
         fmt::format("{}: appended frames have {} points, the dataset has {}",
@@ -743,6 +758,7 @@ void DatasetReader::Read(int64_t begin,
                     begin + count,
                     s.info.num_frames));
   }
+  out->num_slots = 0;
   out->Resize(count, s.info.num_points);
   if (count == 0) return;
   std::lock_guard lock(Hdf5Mutex());
@@ -817,6 +833,7 @@ void DatasetReader::ReadIndices(const std::vector<int64_t>& indices,
     }
   }
   const int64_t n = s.info.num_points;
+  out->num_slots = 0;
   out->Resize(static_cast<int64_t>(indices.size()), s.info.num_points);
   for (size_t k = 0; k < indices.size(); ++k) {
     const int64_t u =

@@ -24,12 +24,26 @@ struct LabeledFrames {
   int num_points = 0;           // N
   std::vector<float> points;    // F * N * 3, (0,0,0) = missing / padding
   std::vector<int16_t> labels;  // F * N, label id or null (= L)
+  /// Label slots of a layout-conditioned stream (docs/any_layout_design.md,
+  /// "The data"): S slots per frame (0 = none, the labels index the
+  /// dataset's label list). Frame f's slot s is row `slots[f * S + s]` of
+  /// the stream's SlotTable (-1 = a padded slot), and its labels are slot
+  /// indices (null = L = S). In memory only (DatasetWriter refuses frames
+  /// with slots).
+  int num_slots = 0;           // S
+  std::vector<int16_t> slots;  // F * S
+
+  const int16_t* frame_slots(int64_t f) const {
+    return slots.data() + f * num_slots;
+  }
+  int16_t* frame_slots(int64_t f) { return slots.data() + f * num_slots; }
 
   int64_t num_frames() const {
     return num_points == 0 ? 0
                            : static_cast<int64_t>(labels.size()) / num_points;
   }
-  /// Sets N and resizes to `frames` frames (contents unspecified).
+  /// Sets N and resizes to `frames` frames (contents unspecified); the
+  /// slots keep S and are resized to match.
   void Resize(int64_t frames, int points_per_frame);
   float* frame_points(int64_t f) { return points.data() + f * num_points * 3; }
   const float* frame_points(int64_t f) const {
@@ -39,8 +53,24 @@ struct LabeledFrames {
   const int16_t* frame_labels(int64_t f) const {
     return labels.data() + f * num_points;
   }
-  /// Appends all frames of `other` (same N; ShapeError otherwise).
+  /// Appends all frames of `other` (same N and S; ShapeError otherwise).
   void Append(const LabeledFrames& other);
+};
+
+/// The descriptors of every label slot a layout-conditioned stream can use:
+/// row g (Q floats, body/vertex_descriptors.h) describes marker g of the
+/// stream's layouts, concatenated in order. LabeledFrames::slots index it.
+struct SlotTable {
+  int width = 0;                   // Q
+  std::vector<float> rows;         // G * Q, row-major
+  std::vector<std::string> names;  // G marker labels (for messages and logs)
+  /// Per row, the layout it belongs to (index into `layouts`).
+  std::vector<int> row_layout;
+  std::vector<std::string> layouts;  // the layouts' names
+
+  int64_t num_rows() const {
+    return width == 0 ? 0 : static_cast<int64_t>(rows.size()) / width;
+  }
 };
 
 /// Dataset-level metadata (HDF5 attributes of the root group).

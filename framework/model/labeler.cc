@@ -112,28 +112,37 @@ void LabelerImpl::SetLayout(const torch::Tensor& descriptors) {
                     "model=soma_any_layout to label with a different layout",
                     options_.num_labels));
   }
-  if (descriptors.dim() != 2 || descriptors.size(0) != options_.num_labels ||
-      descriptors.size(1) != descriptor_width()) {
+  if (descriptors.dim() != 2 || descriptors.size(0) > options_.num_labels ||
+      descriptors.size(0) < 1 || descriptors.size(1) != descriptor_width()) {
     throw ShapeError(fmt::format(
-        "Labeler::SetLayout: descriptors must be {} x {} (label slots x "
-        "descriptor width), got {}",
-        options_.num_labels,
+        "Labeler::SetLayout: descriptors must be K x {} with 1 <= K <= {} "
+        "(labels x descriptor width; K <= the model's label slots), got {}",
         descriptor_width(),
+        options_.num_labels,
         ShapeString(descriptors)));
   }
   torch::NoGradGuard no_grad;
-  layout_descriptors.copy_(descriptors.to(layout_descriptors.options()));
+  // Slots past the layout's K labels stay zero: padded (forward masks them).
+  layout_descriptors.zero_();
+  layout_descriptors.narrow(0, 0, descriptors.size(0))
+      .copy_(descriptors.to(layout_descriptors.options()));
 }
 
 LabelerOutput LabelerImpl::forward(const torch::Tensor& points,
                                    bool return_attention) {
   if (!options_.conditioned) return Run(points, nullptr, return_attention);
-  if (!layout_descriptors.ne(0).any().item<bool>()) {
+  // A slot whose descriptor row is all zero is padded (a real descriptor
+  // holds a unit normal): a layout with fewer labels than the model's slots.
+  const torch::Tensor present = layout_descriptors.ne(0).any(1);
+  if (!present.any().item<bool>()) {
     throw ConfigError(
         "model=soma_any_layout: no layout to label with (Labeler::SetLayout "
-        "was not called and the checkpoint holds none)");
+        "was not called and the checkpoint holds none: a model trained on "
+        "sampled layouts labels the layout it is given, e.g. layout=cmu41)");
   }
-  const LabelSlots slots{layout_descriptors.unsqueeze(0), torch::Tensor()};
+  const LabelSlots slots{
+      layout_descriptors.unsqueeze(0),
+      present.all().item<bool>() ? torch::Tensor() : present.unsqueeze(0)};
   return Run(points, &slots, return_attention);
 }
 

@@ -100,9 +100,11 @@ class LabelerImpl : public torch::nn::Module {
   int64_t descriptor_width() const {
     return options_.conditioned ? options_.label_encoder.descriptor_width : 0;
   }
-  /// Sets the layout of a conditioned labeler: `descriptors` `L x Q` float
-  /// (LayoutDescriptors of vertex_descriptors.h). ShapeError on another
-  /// shape, ConfigError for a plain labeler.
+  /// Sets the layout of a conditioned labeler: `descriptors` `K x Q` float
+  /// (LayoutDescriptors of vertex_descriptors.h), K <= L: the layout's
+  /// labels fill the first K slots, the rest are zeroed and forward() masks
+  /// them as padded. ShapeError on another shape, ConfigError for a plain
+  /// labeler.
   void SetLayout(const torch::Tensor& descriptors);
 
   PointEncoder encoder{nullptr};

@@ -1,10 +1,12 @@
 #include "framework/synth/layout_sampler.h"
 
+#include "framework/config/decode.h"
 #include "framework/core/error.h"
 #include "framework/core/random.h"
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <utility>
 
 namespace soma {
@@ -29,6 +31,25 @@ void LayoutSamplerOptions::Validate() const {
   }
 }
 
+LayoutSamplerOptions DecodeLayoutSamplerOptions(const ConfigNode& node) {
+  ConfigReader reader(node);
+  LayoutSamplerOptions options;
+  std::string name;
+  reader.Require("name", &name);
+  reader.Check("name", name == "builtin", "name is builtin");
+  reader.Read("layouts", &options.layouts);
+  reader.Read("max_labels", &options.max_labels);
+  reader.Read("shuffle_slots", &options.shuffle_slots);
+  reader.Check("layouts", !options.layouts.empty(), "at least one layout");
+  reader.Check("max_labels", options.max_labels > 0, "max_labels > 0");
+  reader.Check("max_labels",
+               options.max_labels <= 32767,
+               "max_labels <= 32767 (int16 label ids)");
+  reader.Finish();
+  options.Validate();
+  return options;
+}
+
 BuiltinLayoutSampler::BuiltinLayoutSampler(const BodyModel& body,
                                            LayoutSamplerOptions options)
     : options_(std::move(options)) {
@@ -48,6 +69,10 @@ BuiltinLayoutSampler::BuiltinLayoutSampler(const BodyModel& body,
           layout.num_markers(),
           options_.max_labels));
     }
+    row_offsets_.push_back(row_offsets_.empty()
+                               ? 0
+                               : row_offsets_.back() +
+                                     layouts_.back().num_markers());
     descriptors_.push_back(LayoutDescriptors(vertices, layout));
     layouts_.push_back(std::move(layout));
   }
@@ -57,6 +82,9 @@ LayoutDraw BuiltinLayoutSampler::Draw(uint64_t seed, int64_t block) const {
   Rng rng = Rng(seed).Stream("layout").Stream(static_cast<uint64_t>(block));
   LayoutDraw draw;
   draw.layout = static_cast<int>(rng.UniformInt(0, num_layouts() - 1));
+  if (options_.cycle_layouts) {
+    draw.layout = static_cast<int>(block % num_layouts());
+  }
   const int k = layouts_[draw.layout].num_markers();
   draw.slot_marker.assign(options_.max_labels, -1);
   if (options_.shuffle_slots) {
@@ -99,6 +127,43 @@ std::vector<uint8_t> BuiltinLayoutSampler::SlotMask(
     mask[s] = draw.slot_marker[s] >= 0 ? 1 : 0;
   }
   return mask;
+}
+
+SlotTable BuiltinLayoutSampler::BuildSlotTable() const {
+  SlotTable table;
+  table.width = descriptor_width_;
+  table.layouts = options_.layouts;
+  for (int k = 0; k < num_layouts(); ++k) {
+    const Eigen::MatrixXf& q = descriptors_[k];
+    for (Eigen::Index m = 0; m < q.rows(); ++m) {
+      for (Eigen::Index c = 0; c < q.cols(); ++c) {
+        table.rows.push_back(q(m, c));
+      }
+      table.names.push_back(layouts_[k].markers[m].label);
+      table.row_layout.push_back(k);
+    }
+  }
+  return table;
+}
+
+std::vector<int16_t> BuiltinLayoutSampler::SlotRows(
+    const LayoutDraw& draw) const {
+  std::vector<int16_t> rows(draw.slot_marker.size(), -1);
+  for (size_t s = 0; s < rows.size(); ++s) {
+    if (draw.slot_marker[s] >= 0) {
+      rows[s] =
+          static_cast<int16_t>(row_offsets_[draw.layout] + draw.slot_marker[s]);
+    }
+  }
+  return rows;
+}
+
+int BuiltinLayoutSampler::max_layout_markers() const {
+  int k = 0;
+  for (const MarkerLayout& layout : layouts_) {
+    k = std::max(k, layout.num_markers());
+  }
+  return k;
 }
 
 }  // namespace soma

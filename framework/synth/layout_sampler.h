@@ -9,13 +9,17 @@
 //                         the order of a layout), the rest are padded.
 //
 // A draw depends only on (seed, block): Rng(seed).Stream("layout").Stream(
-// block). Not wired into the Synthesizer yet: the per-frame slots need
-// LabeledFrames::slots (the design's next step).
+// block). The Synthesizer draws one per placement block when
+// SynthesisOptions::layout_sampler is set (config group
+// synth/layout_sampler); the frames carry the draw as rows of SlotTable()
+// (LabeledFrames::slots).
 #pragma once
 
 #include "framework/body/body_model.h"
 #include "framework/body/marker_layout.h"
 #include "framework/body/vertex_descriptors.h"
+#include "framework/config/node.h"
+#include "framework/io/mocap_dataset.h"
 
 #include <Eigen/Core>
 
@@ -33,8 +37,16 @@ struct LayoutSamplerOptions {
   int max_labels = 96;        // L_max, label slots per frame
   int block_size = 32;        // frames per placement block (REFERENCE 3.3)
   bool shuffle_slots = true;  // random slot order per block
-  void Validate() const;      // ConfigError on violation
+  /// Block b gets layout b mod K instead of a uniform draw (validation: every
+  /// layout gets an equal share of a fixed set of frames).
+  bool cycle_layouts = false;
+  void Validate() const;  // ConfigError on violation
 };
+
+/// Decodes a `synth.layout_sampler` node (`name: builtin`, `layouts`,
+/// `max_labels`, `shuffle_slots`; unknown keys and other names are
+/// ConfigErrors). The block size is the synthesizer's placement block.
+LayoutSamplerOptions DecodeLayoutSamplerOptions(const ConfigNode& node);
 
 /// One block's layout and the order of its markers in the slots.
 struct LayoutDraw {
@@ -62,6 +74,14 @@ class BuiltinLayoutSampler {
   /// `draw`.
   Eigen::MatrixXf SlotDescriptors(const LayoutDraw& draw) const;
   std::vector<uint8_t> SlotMask(const LayoutDraw& draw) const;
+  /// The descriptors of every marker of every listed layout (layout k's
+  /// marker m is row row_offset(k) + m), their labels and layouts.
+  SlotTable BuildSlotTable() const;
+  int row_offset(int k) const { return row_offsets_[k]; }
+  /// Row of SlotTable() of every slot of `draw` (-1 for a padded slot).
+  std::vector<int16_t> SlotRows(const LayoutDraw& draw) const;
+  /// The most markers of a listed layout.
+  int max_layout_markers() const;
 
   int num_layouts() const { return static_cast<int>(layouts_.size()); }
   const MarkerLayout& layout(int k) const { return layouts_[k]; }
@@ -72,6 +92,7 @@ class BuiltinLayoutSampler {
   LayoutSamplerOptions options_;
   std::vector<MarkerLayout> layouts_;
   std::vector<Eigen::MatrixXf> descriptors_;  // per layout, K x Q
+  std::vector<int> row_offsets_;              // per layout, into the table
   int descriptor_width_ = 0;
 };
 

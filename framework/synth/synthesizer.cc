@@ -11,6 +11,11 @@
 // uniform over [n-ring of each of its vertices..., its vertices...]
 // (duplicates weigh more). internal::PlacedMarkerSampler is precomputed for
 // the union of all candidates and poses only the chosen ones.
+//
+// With a layout sampler (SynthesisOptions::layout_sampler) the "layout"
+// frame stream is unused: block b's layout is the sampler's Draw(seed, b),
+// and its placement draws, from the same "placement" stream, one candidate
+// per marker of that layout only (in marker order).
 #include "framework/synth/synthesizer.h"
 
 #include "framework/config/decode.h"
@@ -65,6 +70,10 @@ SynthesisOptions DecodeSynthesisOptions(const ConfigNode& node) {
   reader.Read("shape_scale", &options.shape_scale);
   reader.Read("frame_rate", &options.frame_rate);
   reader.Read("layouts", &options.layouts);
+  if (const ConfigNode* sampler = reader.Child("layout_sampler");
+      sampler != nullptr && !sampler->IsNull()) {
+    options.layout_sampler = DecodeLayoutSamplerOptions(*sampler);
+  }
   reader.Check("marker_ring",
                options.marker_ring >= 0 && options.marker_ring <= 8,
                "0 <= marker_ring <= 8");
@@ -92,6 +101,11 @@ struct Synthesizer::Impl {
   std::vector<int64_t> motion_offsets;  // cumulative frame counts, S + 1
   Eigen::VectorXd beta_scale;           // beta_stddev * shape_scale
   NoisePipeline noise;
+  /// Layout-sampled frames only: the sampler, its slot table (candidates
+  /// are then per table row) and the largest layout's marker count.
+  std::unique_ptr<BuiltinLayoutSampler> layout_sampler;
+  SlotTable slot_table;
+  int max_markers = 0;
 
   /// Scratch of one worker thread.
   struct Workspace {
@@ -103,7 +117,65 @@ struct Synthesizer::Impl {
     MarkerFrame frame;
     int64_t placement_block = -1;
     std::vector<int> placement;  // L candidate indices
+    // Layout-sampled frames: the block's draw, marker -> slot, slot -> row.
+    LayoutDraw draw;
+    std::vector<int16_t> marker_slot;
+    std::vector<int16_t> slot_rows;
   };
+
+  /// Block `block`'s layout draw and the placement of its markers.
+  void SampledPlacement(uint64_t seed, int64_t block, Workspace* ws) const {
+    ws->draw = layout_sampler->Draw(seed, block);
+    const int layout = ws->draw.layout;
+    const int k = layout_sampler->layout(layout).num_markers();
+    const int offset = layout_sampler->row_offset(layout);
+    Rng rng =
+        Rng(seed).Stream("placement").Stream(static_cast<uint64_t>(block));
+    ws->placement.resize(static_cast<size_t>(k));
+    for (int m = 0; m < k; ++m) {
+      const std::vector<int>& list = candidates[offset + m];
+      ws->placement[m] = list[static_cast<size_t>(
+          rng.UniformInt(0, static_cast<int64_t>(list.size()) - 1))];
+    }
+    ws->marker_slot.assign(static_cast<size_t>(k), -1);
+    for (size_t slot = 0; slot < ws->draw.slot_marker.size(); ++slot) {
+      const int m = ws->draw.slot_marker[slot];
+      if (m >= 0) ws->marker_slot[m] = static_cast<int16_t>(slot);
+    }
+    ws->slot_rows = layout_sampler->SlotRows(ws->draw);
+  }
+
+  /// A frame of block ws->draw's layout (docs of Synthesizer).
+  void GenerateSampledFrame(const Rng& rng,
+                            Workspace* ws,
+                            float* out_points,
+                            int16_t* out_labels,
+                            int16_t* out_slots) const {
+    const int k = static_cast<int>(ws->placement.size());
+    ws->markers.resize(3 * static_cast<size_t>(k));
+    sampler->Sample(
+        ws->betas, ws->pose, ws->selection, &ws->sampler, ws->markers.data());
+    MarkerFrame& frame = ws->frame;
+    frame.Reset(k, noise.num_ghost_slots());
+    for (int m = 0; m < k; ++m) {
+      const float* p = &ws->markers[3 * static_cast<size_t>(m)];
+      frame.Set(m, p[0], p[1], p[2], static_cast<int16_t>(m));
+    }
+    noise.Apply(&frame, rng.Stream("noise"));
+    const int16_t null_slot = static_cast<int16_t>(labels.size());
+    const int n = frame.num_points();
+    std::copy(frame.points.begin(), frame.points.end(), out_points);
+    std::fill(out_points + 3 * static_cast<size_t>(n),
+              out_points + 3 * static_cast<size_t>(num_points),
+              0.0f);
+    for (int i = 0; i < n; ++i) {
+      const int16_t label = frame.labels[i];
+      out_labels[i] =
+          label == frame.null_label() ? null_slot : ws->marker_slot[label];
+    }
+    std::fill(out_labels + n, out_labels + num_points, null_slot);
+    std::copy(ws->slot_rows.begin(), ws->slot_rows.end(), out_slots);
+  }
 
   void Placement(uint64_t seed, int64_t block, std::vector<int>* out) const {
     Rng rng =
@@ -121,11 +193,16 @@ struct Synthesizer::Impl {
                      int64_t index,
                      Workspace* ws,
                      float* out_points,
-                     int16_t* out_labels) const {
+                     int16_t* out_labels,
+                     int16_t* out_slots) const {
     const int num_labels = static_cast<int>(labels.size());
     const int64_t block = index / options.placement_block;
     if (block != ws->placement_block) {
-      Placement(seed, block, &ws->placement);
+      if (layout_sampler) {
+        SampledPlacement(seed, block, ws);
+      } else {
+        Placement(seed, block, &ws->placement);
+      }
       sampler->Select(ws->placement, &ws->selection);
       ws->placement_block = block;
     }
@@ -158,6 +235,10 @@ struct Synthesizer::Impl {
       const Eigen::AngleAxisd rotated(
           Eigen::AngleAxisd(delta, Eigen::Vector3d::UnitZ()) * root_rotation);
       ws->pose.rotations.col(0) = rotated.angle() * rotated.axis();
+    }
+    if (layout_sampler) {
+      GenerateSampledFrame(rng, ws, out_points, out_labels, out_slots);
+      return;
     }
 
     ws->markers.resize(3 * static_cast<size_t>(num_labels));
@@ -193,27 +274,58 @@ Synthesizer::Synthesizer(const BodyModel& body,
   options.Validate();
   Impl& impl = *impl_;
   impl.options = options;
+  if (options.layout_sampler.has_value()) {
+    LayoutSamplerOptions sampler_options = *options.layout_sampler;
+    sampler_options.block_size = options.placement_block;
+    impl.layout_sampler = std::make_unique<BuiltinLayoutSampler>(
+        body, std::move(sampler_options));
+    impl.slot_table = impl.layout_sampler->BuildSlotTable();
+    impl.max_markers = impl.layout_sampler->max_layout_markers();
+    layouts.clear();
+    for (int k = 0; k < impl.layout_sampler->num_layouts(); ++k) {
+      layouts.push_back(impl.layout_sampler->layout(k));
+    }
+  }
   if (layouts.empty()) {
     throw ConfigError(
         "Synthesizer: no training layouts (give at least one marker layout)");
   }
   impl.superset = MergeLayouts(layouts);
   impl.labels = impl.superset.Labels();
-  const int num_labels = impl.superset.num_markers();
+  int num_labels = impl.superset.num_markers();
   if (num_labels == 0) {
     throw ConfigError("Synthesizer: the training layouts have no markers");
   }
   impl.noise = std::move(noise);
-  impl.noise.Validate(impl.labels);
-  impl.num_points = num_labels + impl.noise.num_ghost_slots();
+  if (impl.layout_sampler) {
+    // Slots are the labels; the noise sees one sampled layout per frame.
+    for (const MarkerLayout& layout : layouts) {
+      impl.noise.Validate(layout.Labels());
+    }
+    num_labels = impl.layout_sampler->options().max_labels;
+    impl.labels.clear();
+    for (int slot = 0; slot < num_labels; ++slot) {
+      impl.labels.push_back(fmt::format("slot{}", slot));
+    }
+    impl.num_points = impl.max_markers + impl.noise.num_ghost_slots();
+  } else {
+    impl.noise.Validate(impl.labels);
+    impl.num_points = num_labels + impl.noise.num_ghost_slots();
+  }
   if (impl.num_points > 32767) {
     throw ConfigError(fmt::format(
         "Synthesizer: {} points per frame do not fit int16 label ids",
         impl.num_points));
   }
 
-  // Layout membership (labels canonicalised as MergeLayouts does).
-  for (size_t k = 0; k < layouts.size(); ++k) {
+  // Layout membership (labels canonicalised as MergeLayouts does); with a
+  // layout sampler, layout k has the first K_k slots.
+  for (size_t k = 0; k < layouts.size() && impl.layout_sampler; ++k) {
+    std::vector<uint8_t> mask(num_labels, 0);
+    std::fill(mask.begin(), mask.begin() + layouts[k].num_markers(), 1);
+    impl.layout_masks.push_back(std::move(mask));
+  }
+  for (size_t k = 0; k < layouts.size() && !impl.layout_sampler; ++k) {
     std::vector<uint8_t> mask(num_labels, 0);
     for (const MarkerLayout::Marker& m : layouts[k].markers) {
       const int l = impl.superset.FindLabel(CanonicalMarkerLabel(m.label));
@@ -239,7 +351,18 @@ Synthesizer::Synthesizer(const BodyModel& body,
   std::map<std::pair<int, double>, int> union_index;
   std::vector<int> union_vertices;
   std::vector<double> union_distances;
-  for (const MarkerLayout::Marker& m : impl.superset.markers) {
+  // Candidates per label, or per slot-table row (the sampled layouts'
+  // markers, concatenated) with a layout sampler.
+  std::vector<MarkerLayout::Marker> candidate_markers;
+  if (impl.layout_sampler) {
+    for (const MarkerLayout& layout : layouts) {
+      candidate_markers.insert(candidate_markers.end(),
+                               layout.markers.begin(),
+                               layout.markers.end());
+    }
+  }
+  for (const MarkerLayout::Marker& m :
+       impl.layout_sampler ? candidate_markers : impl.superset.markers) {
     if (m.vertex_ids.empty()) {
       throw ConfigError(
           fmt::format("Synthesizer: marker {} has no vertex id", m.label));
@@ -347,6 +470,12 @@ double Synthesizer::frame_rate() const {
 int Synthesizer::num_candidate_markers() const {
   return impl_->sampler->num_candidates();
 }
+const SlotTable* Synthesizer::slot_table() const {
+  return impl_->layout_sampler ? &impl_->slot_table : nullptr;
+}
+const BuiltinLayoutSampler* Synthesizer::layout_sampler() const {
+  return impl_->layout_sampler.get();
+}
 
 void Synthesizer::Generate(uint64_t seed,
                            int64_t first,
@@ -366,6 +495,9 @@ void Synthesizer::Generate(uint64_t seed,
   out->num_points = n;
   out->points.resize(static_cast<size_t>(count) * n * 3);
   out->labels.resize(static_cast<size_t>(count) * n);
+  out->num_slots =
+      impl.layout_sampler ? impl.layout_sampler->options().max_labels : 0;
+  out->slots.resize(static_cast<size_t>(count) * out->num_slots);
   if (count == 0) return;
   const Rng frames_rng = Rng(seed).Stream("frame");
   const int workers = static_cast<int>(
@@ -378,7 +510,8 @@ void Synthesizer::Generate(uint64_t seed,
                          first + f,
                          &ws,
                          out->frame_points(f),
-                         out->frame_labels(f));
+                         out->frame_labels(f),
+                         out->frame_slots(f));
     }
   };
   if (workers == 1) {

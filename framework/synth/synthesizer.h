@@ -12,10 +12,12 @@
 #include "framework/config/node.h"
 #include "framework/io/mocap_dataset.h"
 #include "framework/motion/pose_sequence.h"
+#include "framework/synth/layout_sampler.h"
 #include "framework/synth/noise.h"
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -39,6 +41,10 @@ struct SynthesisOptions {
   /// (cmu41, pig39, soma53, superset89) or layout JSON paths. Empty = the
   /// config's `layout` group. Used by BuildSynthesizer.
   std::vector<std::string> layouts;
+  /// A layout per placement block for a layout-conditioned labeller
+  /// (`synth.layout_sampler`, config group synth/layout_sampler; unset =
+  /// today's superset frames). See Synthesizer.
+  std::optional<LayoutSamplerOptions> layout_sampler;
   void Validate() const;  // ConfigError on violation
 };
 
@@ -49,6 +55,17 @@ class Synthesizer {
  public:
   /// `layouts`: the training layouts (>= 1); their superset (MergeLayouts)
   /// defines the L labels. Each frame uses one layout chosen uniformly.
+  ///
+  /// With `options.layout_sampler` the frames are for a layout-conditioned
+  /// labeller instead (docs/any_layout_design.md, "The data"): `layouts` is
+  /// ignored, a BuiltinLayoutSampler draws one of its layouts per placement
+  /// block (Draw(seed, block)), the block's markers are that layout's
+  /// (each from its n-ring, as above), and a frame's labels are slot
+  /// indices of the draw (L = max_labels slots, null = L). N = the largest
+  /// sampled layout's marker count + ghost slots (frames of smaller layouts
+  /// are padded with missing points). The frames carry the draw in
+  /// LabeledFrames::slots (rows of slot_table()). superset() is then the
+  /// merge of the sampled layouts (for information).
   /// `motions`: >= 1 non-empty sequences. ConfigError/ShapeError on bad
   /// input.
   Synthesizer(const BodyModel& body,
@@ -76,6 +93,10 @@ class Synthesizer {
   /// Distinct candidate marker positions (vertex, skin distance) over all
   /// labels: the markers computed per frame.
   int num_candidate_markers() const;
+  /// The sampled layouts' slot descriptors (null without a layout sampler).
+  const SlotTable* slot_table() const;
+  /// The layout sampler (null without one).
+  const BuiltinLayoutSampler* layout_sampler() const;
 
   /// Frames [first, first + count) of the stream `seed` into `out` (resized
   /// to `count` frames of num_points()). Uses `threads` worker threads;

@@ -74,8 +74,12 @@ Synthesizer BuildSynthesizer(const ConfigNode& cfg,
                              Split split,
                              BuildContext& ctx) {
   const ConfigNode* synth = cfg.Find("synth");
-  const SynthesisOptions options =
+  SynthesisOptions options =
       synth == nullptr ? SynthesisOptions() : DecodeSynthesisOptions(*synth);
+  if (options.layout_sampler.has_value() && split != Split::kTrain) {
+    // Validation and test frames give every sampled layout an equal share.
+    options.layout_sampler->cycle_layouts = true;
+  }
   const BodyModel body = BuildBody(cfg, ctx);
   std::vector<MarkerLayout> layouts;
   if (options.layouts.empty()) {
@@ -104,6 +108,18 @@ Synthesizer BuildSynthesizer(const ConfigNode& cfg,
   NoisePipeline noise = BuildNoise(cfg, ctx);
   Synthesizer synthesizer(
       body, std::move(layouts), std::move(clips), std::move(noise), options);
+  if (synthesizer.slot_table() != nullptr) {
+    SOMA_LOG(INFO,
+             "synthesizer ({}): a layout per placement block of {} ({}), {} "
+             "label slots, N = {} points, {} candidate marker positions",
+             ToString(split),
+             options.placement_block,
+             options.layout_sampler->cycle_layouts ? "in turn" : "uniform",
+             synthesizer.num_labels(),
+             synthesizer.num_points(),
+             synthesizer.num_candidate_markers());
+    return synthesizer;
+  }
   SOMA_LOG(INFO,
            "synthesizer: {} layout(s), superset L = {}, N = {} points, {} "
            "candidate marker positions",

@@ -40,6 +40,7 @@
 #include "framework/io/mocap_dataset.h"
 #include "framework/registry/registry.h"
 #include "framework/synth/corruption.h"
+#include "framework/tasks/label_layout.h"
 #include "framework/tasks/task.h"
 #include "framework/train/model_zoo.h"
 #include "framework/train/trainer.h"
@@ -231,7 +232,21 @@ class LabelEvalTask : public Task {
                              choice.model.name,
                              choice.model.description);
     }
-    const CheckpointInfo info = ReadCheckpointInfo(checkpoint);
+    CheckpointInfo info = ReadCheckpointInfo(checkpoint);
+    {
+      // A layout given at label time (framework/tasks/label_layout.h): the
+      // labeller's labels are that layout's (checked here, applied by the
+      // label sub-tasks).
+      BuildContext build(ctx.seed, ctx.output_dir.string());
+      const std::optional<LabelTimeLayout> layout =
+          ResolveLabelTimeLayout(cfg,
+                                 ctx.overrides,
+                                 info,
+                                 checkpoint,
+                                 LoadLabelerFromCheckpoint(checkpoint),
+                                 build);
+      if (layout.has_value()) info.labels = layout->labels;
+    }
     if (!name_map.empty()) {
       CheckMarkerNameMap(name_map, info.labels, "the labeller");
     }
@@ -449,6 +464,7 @@ class LabelEvalTask : public Task {
     sub.job_name = ctx.job_name;
     sub.job_num = ctx.job_num;
     sub.hydra = ctx.hydra;
+    sub.overrides = ctx.overrides;
     sub.seed = ctx.seed;
     sub.num_threads = ctx.num_threads;
     return sub;

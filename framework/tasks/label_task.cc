@@ -62,6 +62,7 @@
 #include "framework/model/labeler.h"
 #include "framework/model/torch_utils.h"
 #include "framework/registry/registry.h"
+#include "framework/tasks/label_layout.h"
 #include "framework/tasks/task.h"
 #include "framework/train/model_zoo.h"
 #include "framework/train/trainer.h"
@@ -159,11 +160,21 @@ class LabelTask : public Task {
       SOMA_LOG(INFO, "label: {}", choice.reason);
       options_.checkpoint = choice.model.checkpoint.string();
     }
-    const CheckpointInfo info = ReadCheckpointInfo(options_.checkpoint);
+    CheckpointInfo info = ReadCheckpointInfo(options_.checkpoint);
+    Labeler model = LoadLabelerFromCheckpoint(options_.checkpoint);
+    // A layout-conditioned checkpoint labels a layout given at label time
+    // (framework/tasks/label_layout.h): its labels replace the checkpoint's.
+    BuildContext build(ctx.seed, ctx.output_dir.string());
+    const std::optional<LabelTimeLayout> layout = ResolveLabelTimeLayout(
+        cfg, ctx.overrides, info, options_.checkpoint, model, build);
+    const int64_t model_slots = model->num_labels();
+    if (layout.has_value()) {
+      model->SetLayout(layout->descriptors);
+      info.labels = layout->labels;
+    }
     if (!name_map.empty()) {
       CheckMarkerNameMap(name_map, info.labels, "the labeller");
     }
-    Labeler model = LoadLabelerFromCheckpoint(options_.checkpoint);
     const CalibrationChoice calibration =
         ResolveCalibration(options_.calibration, options_.checkpoint);
     SOMA_LOG(INFO, "label: {}", calibration.reason);
@@ -212,9 +223,22 @@ class LabelTask : public Task {
     bar.Finish();
     const double seconds = timer.ElapsedSeconds();
     at::Tensor label_ids = at::cat(ids);
-    const at::Tensor predicted_ids = at::cat(predicted);
+    at::Tensor predicted_ids = at::cat(predicted);
     at::Tensor probabilities = at::cat(confidence).contiguous();
     confidence.clear();
+    if (num_labels < model_slots) {
+      // The layout's K labels are the first K of the model's slots: the
+      // padded slots (never assigned) go, null becomes K.
+      auto to_layout = [&](const at::Tensor& id) {
+        return at::where(id >= num_labels, at::full_like(id, num_labels), id);
+      };
+      label_ids = to_layout(label_ids);
+      predicted_ids = to_layout(predicted_ids);
+      probabilities = at::cat({probabilities.narrow(2, 0, num_labels),
+                               probabilities.narrow(2, model_slots, 1)},
+                              2)
+                          .contiguous();
+    }
     const at::Tensor valid = points.abs().sum(-1) > 0;
     if (options_.tracklet) {
       label_ids = ResolveDuplicateLabels(

@@ -24,6 +24,7 @@
 #include "framework/train/trainer.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <torch/utils.h>
 
 #include <optional>
@@ -123,20 +124,32 @@ class TrainTask : public Task {
              "train: labeler with {} trainable parameters",
              CountTrainableParameters(*model));
     if (model->conditioned()) {
-      // One fixed layout per run (issue #25 item 1, first slice): the label
-      // slots are the synthesizer's layout, saved with the checkpoints.
       if (!train_synth.has_value()) {
         throw ConfigError(
             "model=soma_any_layout trains on task.data=synth only (its label "
             "slots come from the synthesizer's layout)");
       }
-      model->SetLayout(LayoutSlotDescriptors(BuildBody(cfg, build),
-                                             train_synth->superset(),
-                                             model->descriptor_width()));
-      SOMA_LOG(INFO,
-               "train: layout-conditioned labeler, {} label slots from the "
-               "synthesizer's layout",
-               labels.size());
+      if (const SlotTable* table = train_synth->slot_table();
+          table != nullptr) {
+        // A layout per placement block (synth.layout_sampler): each batch
+        // brings its slots; the checkpoint holds no layout (its labels are
+        // the slots, its config the sampler), so `soma label` needs one.
+        SOMA_LOG(INFO,
+                 "train: layout-conditioned labeler, {} label slots, a "
+                 "layout per placement block sampled from [{}]",
+                 labels.size(),
+                 fmt::join(table->layouts, ", "));
+      } else {
+        // One fixed layout per run: the label slots are the synthesizer's
+        // layout, saved with the checkpoints.
+        model->SetLayout(LayoutSlotDescriptors(BuildBody(cfg, build),
+                                               train_synth->superset(),
+                                               model->descriptor_width()));
+        SOMA_LOG(INFO,
+                 "train: layout-conditioned labeler, {} label slots from the "
+                 "synthesizer's layout",
+                 labels.size());
+      }
     }
     std::shared_ptr<const LabelingLoss> loss =
         Instantiate<LabelingLoss>(cfg.at("loss"), build);
@@ -148,6 +161,12 @@ class TrainTask : public Task {
     identity.model_config = ConfigNode::EmptyMap();
     identity.model_config.Set("model", cfg.at("model"));
     identity.model_config.Set("normalization", cfg.at("normalization"));
+    if (train_synth.has_value() && train_synth->slot_table() != nullptr) {
+      // Trained on sampled layouts: recorded with the model (a resume must
+      // sample the same ones; `soma label` asks for a layout).
+      identity.model_config.Set("layout_sampler",
+                                cfg.at("synth").at("layout_sampler"));
+    }
     identity.labels = labels;
     identity.config_yaml = DumpYaml(cfg);
 

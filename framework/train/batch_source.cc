@@ -13,8 +13,13 @@
 namespace soma {
 namespace {
 
-void ResizeFrames(int64_t frames, int num_points, LabeledFrames* out) {
+void ResizeFrames(int64_t frames,
+                  int num_points,
+                  int num_slots,
+                  LabeledFrames* out) {
   out->num_points = num_points;
+  out->num_slots = num_slots;
+  out->slots.resize(static_cast<size_t>(frames * num_slots));
   out->points.resize(static_cast<size_t>(frames * num_points * 3));
   out->labels.resize(static_cast<size_t>(frames * num_points));
 }
@@ -30,6 +35,11 @@ void CopyFrame(const LabeledFrames& from,
   std::memcpy(to->frame_labels(dst),
               from.frame_labels(src),
               sizeof(int16_t) * static_cast<size_t>(n));
+  if (from.num_slots > 0) {
+    std::memcpy(to->frame_slots(dst),
+                from.frame_slots(src),
+                sizeof(int16_t) * static_cast<size_t>(from.num_slots));
+  }
 }
 
 }  // namespace
@@ -73,7 +83,7 @@ void InMemoryBatchSource::Read(int epoch,
         begin + count,
         total));
   }
-  ResizeFrames(count, frames_.num_points, out);
+  ResizeFrames(count, frames_.num_points, frames_.num_slots, out);
   if (!shuffle_) {
     for (int64_t i = 0; i < count; ++i) CopyFrame(frames_, begin + i, out, i);
     return;

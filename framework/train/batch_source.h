@@ -30,6 +30,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace soma {
@@ -45,6 +46,10 @@ class BatchSource {
   int num_labels() const { return static_cast<int>(labels().size()); }
   /// N, points per frame.
   virtual int num_points() const = 0;
+  /// The slot table its frames' LabeledFrames::slots index (a
+  /// layout-sampled source for a layout-conditioned labeller), or null
+  /// when the frames carry no slots.
+  virtual const SlotTable* slot_table() const { return nullptr; }
   /// Frames available in one epoch.
   virtual int64_t frames_per_epoch() const = 0;
   /// Frames [begin, begin + count) of epoch `epoch`'s order into `out`
@@ -73,9 +78,15 @@ class InMemoryBatchSource : public BatchSource {
             int64_t count,
             LabeledFrames* out) const override;
   const LabeledFrames& frames() const { return frames_; }
+  /// The table the frames' slots index (frames with LabeledFrames::slots).
+  void SetSlotTable(SlotTable table) { slot_table_ = std::move(table); }
+  const SlotTable* slot_table() const override {
+    return frames_.num_slots > 0 ? &slot_table_ : nullptr;
+  }
 
  private:
   LabeledFrames frames_;
+  SlotTable slot_table_;
   std::vector<std::string> labels_;
   bool shuffle_;
   uint64_t seed_;
@@ -111,6 +122,7 @@ class SynthBatchSource : public BatchSource {
   ~SynthBatchSource() override;
   const std::vector<std::string>& labels() const override;
   int num_points() const override;
+  const SlotTable* slot_table() const override;
   int64_t frames_per_epoch() const override { return frames_per_epoch_; }
   void Read(int epoch,
             int64_t begin,

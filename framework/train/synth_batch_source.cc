@@ -36,12 +36,40 @@ const std::vector<std::string>& SynthBatchSource::labels() const {
 
 int SynthBatchSource::num_points() const { return synthesizer_->num_points(); }
 
+const SlotTable* SynthBatchSource::slot_table() const {
+  return synthesizer_->slot_table();
+}
+
+namespace {
+
+int NumSlots(const Synthesizer& synthesizer) {
+  return synthesizer.layout_sampler() == nullptr
+             ? 0
+             : synthesizer.layout_sampler()->options().max_labels;
+}
+
+void CopySlots(const LabeledFrames& from,
+               int64_t src,
+               int64_t count,
+               LabeledFrames* to,
+               int64_t dst) {
+  if (from.num_slots == 0 || count == 0) return;
+  std::memcpy(to->frame_slots(dst),
+              from.frame_slots(src),
+              sizeof(int16_t) * static_cast<size_t>(count * from.num_slots));
+}
+
+}  // namespace
+
 void SynthBatchSource::Fill(int64_t begin, int64_t end) const {
   const int n = synthesizer_->num_points();
   if (generated_.empty()) {
     cache_.num_points = n;
     cache_.points.assign(static_cast<size_t>(frames_per_epoch_) * n * 3, 0.f);
     cache_.labels.assign(static_cast<size_t>(frames_per_epoch_) * n, 0);
+    cache_.num_slots = NumSlots(*synthesizer_);
+    cache_.slots.assign(
+        static_cast<size_t>(frames_per_epoch_) * cache_.num_slots, -1);
     generated_.assign(static_cast<size_t>(frames_per_epoch_), false);
   }
   LabeledFrames run;
@@ -60,6 +88,7 @@ void SynthBatchSource::Fill(int64_t begin, int64_t end) const {
     std::memcpy(cache_.frame_labels(f),
                 run.labels.data(),
                 sizeof(int16_t) * run.labels.size());
+    CopySlots(run, 0, stop - f, &cache_, f);
     std::fill(generated_.begin() + f, generated_.begin() + stop, true);
     f = stop;
   }
@@ -90,6 +119,8 @@ void SynthBatchSource::Read(int epoch,
   out->num_points = n;
   out->points.resize(static_cast<size_t>(count) * n * 3);
   out->labels.resize(static_cast<size_t>(count) * n);
+  out->num_slots = NumSlots(*synthesizer_);
+  out->slots.resize(static_cast<size_t>(count) * out->num_slots);
   if (mode_ == Mode::kFixed || epoch == 0) {
     // In order: generate this range and a little ahead, in chunks large
     // enough for `threads_` workers (epoch 0 of a pool overlaps the
@@ -102,6 +133,7 @@ void SynthBatchSource::Read(int epoch,
     std::memcpy(out->labels.data(),
                 cache_.frame_labels(begin),
                 sizeof(int16_t) * out->labels.size());
+    CopySlots(cache_, begin, count, out, 0);
     return;
   }
   Fill(0, frames_per_epoch_);  // a resumed run regenerates the pool once
@@ -118,6 +150,7 @@ void SynthBatchSource::Read(int epoch,
     std::memcpy(out->frame_labels(i),
                 cache_.frame_labels(f),
                 sizeof(int16_t) * static_cast<size_t>(n));
+    CopySlots(cache_, f, 1, out, i);
   }
 }
 

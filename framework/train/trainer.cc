@@ -22,6 +22,7 @@
 #include <fmt/ranges.h>
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <cmath>
 #include <csignal>
 #include <cstdio>
@@ -180,9 +181,44 @@ std::string FirstDifference(const ConfigNode& a,
 struct Tensors {
   torch::Tensor points;  // B x N x 3 float
   torch::Tensor labels;  // B x N int64
+  /// Frames with label slots (a layout-sampled source): B x S x Q
+  /// descriptors gathered from the source's SlotTable, B x S mask.
+  bool has_slots = false;
+  LabelSlots slots;
 };
 
-Tensors ToTensors(const LabeledFrames& frames) {
+/// The label slots of `frames` (LabeledFrames::slots, rows of `table`).
+void GatherSlots(const LabeledFrames& frames,
+                 const SlotTable* table,
+                 Tensors* t) {
+  if (frames.num_slots == 0) return;
+  if (table == nullptr || table->num_rows() == 0) {
+    throw InternalError(
+        "Trainer: the frames carry label slots but their source has no slot "
+        "table");
+  }
+  const int64_t b = frames.num_frames();
+  const int64_t s = frames.num_slots;
+  const int64_t g = table->num_rows();
+  const torch::Tensor rows =
+      torch::cat({torch::from_blob(const_cast<float*>(table->rows.data()),
+                                   {g, static_cast<int64_t>(table->width)},
+                                   torch::kFloat),
+                  torch::zeros({1, static_cast<int64_t>(table->width)})});
+  const torch::Tensor ids =
+      torch::from_blob(
+          const_cast<int16_t*>(frames.slots.data()), {b, s}, torch::kShort)
+          .to(torch::kLong);
+  const torch::Tensor padded = ids.lt(0);
+  const torch::Tensor index = torch::where(padded, g, ids);
+  t->has_slots = true;
+  t->slots.descriptors =
+      rows.index_select(0, index.flatten()).view({b, s, table->width});
+  t->slots.mask = padded.logical_not();
+}
+
+Tensors ToTensors(const LabeledFrames& frames,
+                  const SlotTable* table = nullptr) {
   const int64_t b = frames.num_frames();
   const int64_t n = frames.num_points;
   Tensors t;
@@ -194,7 +230,63 @@ Tensors ToTensors(const LabeledFrames& frames) {
       torch::from_blob(
           const_cast<int16_t*>(frames.labels.data()), {b, n}, torch::kShort)
           .to(torch::kLong);
+  GatherSlots(frames, table, &t);
   return t;
+}
+
+/// The model's forward on a batch: with the batch's label slots when it
+/// carries them.
+LabelerOutput ForwardBatch(Labeler& model, const Tensors& t) {
+  return t.has_slots ? model->ForwardSlots(t.points, t.slots)
+                     : model->forward(t.points);
+}
+
+/// The loss targets of a batch; a padded slot's column (always "not
+/// available", its mass sent to the dustbin) does not enter the loss.
+AugmentedTargets BatchTargets(const Tensors& t, int64_t num_labels) {
+  AugmentedTargets targets = BuildAugmentedTargets(t.labels, num_labels);
+  if (t.has_slots) {
+    const torch::Tensor columns =
+        torch::cat({t.slots.mask.to(torch::kFloat),
+                    torch::ones({t.labels.size(0), 1})},
+                   1)
+            .unsqueeze(1);  // B x 1 x L+1
+    targets.weights = (targets.weights * columns).contiguous();
+  }
+  return targets;
+}
+
+/// Validation pairs per sampled layout (SlotTable::layouts).
+struct LayoutCount {
+  int64_t correct = 0;
+  int64_t pairs = 0;
+  int64_t frames = 0;
+};
+
+/// Adds each frame's scored pairs (train/metrics.h) to its layout's count;
+/// a frame's layout is that of its first slot's row.
+void AddLayoutCounts(const LabeledFrames& frames,
+                     const SlotTable& table,
+                     const int64_t* gt,
+                     const int64_t* pred,
+                     const bool* valid,
+                     int num_labels,
+                     std::vector<LayoutCount>* counts) {
+  const int64_t n = frames.num_points;
+  for (int64_t f = 0; f < frames.num_frames(); ++f) {
+    const int16_t* slots = frames.frame_slots(f);
+    const int16_t* first = std::find_if(
+        slots, slots + frames.num_slots, [](int16_t r) { return r >= 0; });
+    if (first == slots + frames.num_slots) continue;
+    const int layout = table.row_layout[static_cast<size_t>(*first)];
+    const LabelingScore score =
+        ScoreLabels(gt + f * n, pred + f * n, valid + f * n, n, num_labels);
+    LayoutCount& c = (*counts)[static_cast<size_t>(layout)];
+    c.correct += static_cast<int64_t>(
+        std::llround(score.accuracy * static_cast<double>(score.num_pairs)));
+    c.pairs += score.num_pairs;
+    ++c.frames;
+  }
 }
 
 // SIGUSR1 while training (SLURM's --signal=B:USR1 passed on by the launcher's
@@ -716,6 +808,8 @@ EpochMetrics Trainer::Validate(const BatchSource& val, EpochMetrics row) {
   const int64_t num_batches = total / batch;  // drop_last, as released
   const int64_t num_labels = model_->num_labels();
   LabelingMetrics metrics(static_cast<int>(num_labels));
+  std::vector<LayoutCount> layout_counts(
+      val.slot_table() != nullptr ? val.slot_table()->layouts.size() : 0);
   double loss_sum = 0;
   int64_t loss_count = 0;
   model_->eval();
@@ -732,14 +826,12 @@ EpochMetrics Trainer::Validate(const BatchSource& val, EpochMetrics row) {
         val, PlanBatches(0, num_batches, batch), options_.prefetch);
     LabeledFrames frames;
     while (prefetcher.Next(&frames)) {
-      const Tensors t = ToTensors(frames);
-      const LabelerOutput out = fast_eval != nullptr
+      const Tensors t = ToTensors(frames, val.slot_table());
+      const LabelerOutput out = fast_eval != nullptr && !t.has_slots
                                     ? fast_eval->Forward(t.points)
-                                    : model_->forward(t.points);
+                                    : ForwardBatch(model_, t);
       const double loss =
-          loss_
-              ->Compute(out.log_assignment,
-                        BuildAugmentedTargets(t.labels, num_labels))
+          loss_->Compute(out.log_assignment, BatchTargets(t, num_labels))
               .item<double>();
       if (!std::isnan(loss)) {
         loss_sum += loss;
@@ -755,9 +847,36 @@ EpochMetrics Trainer::Validate(const BatchSource& val, EpochMetrics row) {
                        valid.data_ptr<bool>(),
                        t.labels.size(0),
                        t.labels.size(1));
+      if (t.has_slots) {
+        AddLayoutCounts(frames,
+                        *val.slot_table(),
+                        t.labels.data_ptr<int64_t>(),
+                        predicted.data_ptr<int64_t>(),
+                        valid.data_ptr<bool>(),
+                        static_cast<int>(num_labels),
+                        &layout_counts);
+      }
     }
   }
   model_->train();
+  if (!layout_counts.empty()) {
+    std::vector<std::string> parts;
+    for (size_t k = 0; k < layout_counts.size(); ++k) {
+      const LayoutCount& c = layout_counts[k];
+      parts.push_back(fmt::format(
+          "{} {}",
+          val.slot_table()->layouts[k],
+          c.pairs > 0 ? fmt::format("{:.4f} ({} frames)",
+                                    static_cast<double>(c.correct) /
+                                        static_cast<double>(c.pairs),
+                                    c.frames)
+                      : std::string("- (no frames)")));
+    }
+    SOMA_LOG(INFO,
+             "train: epoch {} validation accuracy per layout: {}",
+             row.epoch,
+             fmt::join(parts, ", "));
+  }
   row.val_loss = loss_count > 0 ? loss_sum / static_cast<double>(loss_count)
                                 : std::numeric_limits<double>::quiet_NaN();
   row.val_acc = metrics.batch_accuracy();
@@ -776,6 +895,13 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
         train.num_labels(),
         val.num_labels(),
         identity_.labels.size()));
+  }
+  if ((train.slot_table() != nullptr || val.slot_table() != nullptr) &&
+      !model_->conditioned()) {
+    throw ConfigError(
+        "Trainer: the data has a layout per placement block "
+        "(synth.layout_sampler) but the model has a fixed layout; use "
+        "model=soma_any_layout");
   }
   const int64_t num_batches = train.frames_per_epoch() / options_.batch_size;
   if (num_batches < 1) {
@@ -887,16 +1013,16 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
             scheduler_->StepLr(state.step, total_steps, state.lr);
         SetLearningRate(*optimizer_, step_lr);
         row.lr = step_lr;  // metrics.csv: the rate of the epoch's last step
-        const Tensors t = ToTensors(frames);
+        const Tensors t = ToTensors(frames, train.slot_table());
         // Forward and loss (the fast engine also computes the gradients).
         torch::Tensor loss;
         double value = 0.0;
         if (fast_ != nullptr) {
           value = fast_->Step(t.points, t.labels);
         } else {
-          const LabelerOutput out = model_->forward(t.points);
-          loss = loss_->Compute(out.log_assignment,
-                                BuildAugmentedTargets(t.labels, num_labels));
+          const LabelerOutput out = ForwardBatch(model_, t);
+          loss =
+              loss_->Compute(out.log_assignment, BatchTargets(t, num_labels));
           value = loss.item<double>();
         }
         if (!std::isfinite(value)) {

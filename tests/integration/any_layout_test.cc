@@ -1,7 +1,10 @@
 // model=soma_any_layout end to end (issue #25 item 1, first slice): `soma
 // train` on the synthesizer's layout with the fast engine requested (it falls
 // back to torch with one log line), the checkpoint holds the layout's label
-// slots and loads, and `soma label` labels the bundled clip with it.
+// slots and loads, and `soma label` labels the bundled clip with it. Second
+// slice: training with a layout per placement block
+// (synth/layout_sampler=builtin), resumed, recorded in the checkpoint; and
+// `soma label` / `soma label_eval` with a layout given at label time.
 #include "framework/body/marker_layout.h"
 #include "framework/body/procedural_body.h"
 #include "framework/config/app.h"
@@ -107,6 +110,171 @@ TEST(AnyLayout, TrainsSavesLoadsAndLabelsTheBundledClip) {
   EXPECT_EQ(labeled.num_frames, 600);
   ASSERT_GE(labeled.num_points, 41);
   EXPECT_EQ(labeled.labels[0], "C7");  // the checkpoint's label order
+}
+
+std::vector<std::string> SampledTrainArgs(const fs::path& run, int epochs) {
+  return {"task=train",
+          "model=soma_any_layout",
+          "synth/layout_sampler=builtin",
+          "scale=cpu",
+          "hydra.run.dir=" + run.string(),
+          "model.d_model=16",
+          "model.hidden=16",
+          "model.backbone.num_layers=1",
+          "model.backbone.num_heads=2",
+          "model.label_encoder.num_heads=2",
+          "model.label_encoder.num_layers=1",
+          "normalization.num_iters=5",
+          "train.batch_size=16",
+          "train.train_frames=64",
+          "train.val_frames=128",
+          "train.max_epochs=" + std::to_string(epochs),
+          "train.progress=false",
+          "threads=1"};
+}
+
+TEST(AnyLayout, TrainsOnALayoutPerPlacementBlockAndResumes) {
+  const fs::path dir = testing::CreateTestDir();
+  const fs::path run = dir / "train";
+  const std::string configs = (testing::SourceDir() / "configs").string();
+  ASSERT_EQ(RunHydraApp(
+                SampledTrainArgs(run, 1), configs, "config", RunConfiguredTask),
+            0);
+  const std::string log = ReadFile(run / "soma.log");
+  EXPECT_THAT(log,
+              ::testing::HasSubstr("96 label slots, a layout per placement "
+                                   "block sampled from [cmu41, pig39, "
+                                   "soma53]"));
+  // Validation accuracy per layout, one line per epoch.
+  EXPECT_EQ(CountOccurrences(log,
+                             "epoch 1 validation accuracy per layout: "
+                             "cmu41 "),
+            1)
+      << log;
+
+  // The checkpoint: a conditioned labeler over 96 slots, no stored layout
+  // (each batch brought its own), the sampler recorded with the model.
+  const fs::path best = run / "checkpoints" / "best.pt";
+  const CheckpointInfo info = ReadCheckpointInfo(best);
+  const ConfigNode* sampler = info.model_config.Find("layout_sampler");
+  ASSERT_NE(sampler, nullptr);
+  EXPECT_EQ(sampler->at("name").AsString(), "builtin");
+  EXPECT_EQ(info.labels.size(), 96u);
+  const Labeler model = LoadLabelerFromCheckpoint(best);
+  ASSERT_TRUE(model->conditioned());
+  EXPECT_EQ(model->num_labels(), 96);
+  EXPECT_FALSE(model->layout_descriptors.ne(0).any().item<bool>());
+
+  // Resumes in the same run dir.
+  ASSERT_EQ(RunHydraApp(
+                SampledTrainArgs(run, 2), configs, "config", RunConfiguredTask),
+            0);
+  const std::string metrics = ReadFile(run / "metrics.csv");
+  EXPECT_EQ(std::count(metrics.begin(), metrics.end(), '\n'), 3) << metrics;
+  EXPECT_THAT(ReadFile(run / "soma.log"),
+              ::testing::HasSubstr("train: resumed from"));
+
+  // A fixed-head model cannot train on sampled layouts: one line, non-zero.
+  std::vector<std::string> fixed = SampledTrainArgs(dir / "fixed", 1);
+  fixed[1] = "model=soma";
+  fixed.erase(std::remove_if(fixed.begin(),
+                             fixed.end(),
+                             [](const std::string& a) {
+                               return a.rfind("model.label_encoder", 0) == 0;
+                             }),
+              fixed.end());
+  EXPECT_NE(RunHydraApp(fixed, configs, "config", RunConfiguredTask), 0);
+  EXPECT_THAT(ReadFile(dir / "fixed" / "soma.log"),
+              ::testing::HasSubstr("use model=soma_any_layout"));
+}
+
+TEST(AnyLayout, LabelsWithALayoutGivenAtLabelTime) {
+  const fs::path dir = testing::CreateTestDir();
+  const std::string configs = (testing::SourceDir() / "configs").string();
+  // A conditioned model with 60 slots trained on sampled layouts, and a
+  // fixed-head model trained on cmu41 (one tiny epoch each).
+  std::vector<std::string> sampled = SampledTrainArgs(dir / "sampled", 1);
+  sampled.push_back("synth.layout_sampler.max_labels=60");
+  ASSERT_EQ(RunHydraApp(sampled, configs, "config", RunConfiguredTask), 0);
+  std::vector<std::string> fixed = SampledTrainArgs(dir / "fixed", 1);
+  fixed[1] = "model=soma";
+  fixed.erase(std::remove_if(fixed.begin(),
+                             fixed.end(),
+                             [](const std::string& a) {
+                               return a.rfind("model.label_encoder", 0) == 0 ||
+                                      a.rfind("synth/layout_sampler", 0) == 0;
+                             }),
+              fixed.end());
+  ASSERT_EQ(RunHydraApp(fixed, configs, "config", RunConfiguredTask), 0);
+  const fs::path clip = testing::SourceDir() / "data" / "cmu_01_01_f0-599.c3d";
+  auto label = [&](const std::string& run,
+                   const fs::path& model,
+                   const std::string& layout,
+                   std::string* err) {
+    std::vector<std::string> args = {
+        "label",
+        "hydra.run.dir=" + run,
+        "task.input=" + clip.string(),
+        "task.checkpoint=" + (model / "checkpoints/best.pt").string()};
+    if (!layout.empty()) args.push_back(layout);
+    return testing::RunSomaTask(dir, args, err);
+  };
+  const BodyModel body = MakeProceduralBody();
+  std::string err;
+  for (const std::string layout : {"pig39", "cmu41"}) {
+    SCOPED_TRACE(layout);
+    ASSERT_EQ(label(layout, dir / "sampled", "layout=" + layout, &err), 0)
+        << err;
+    EXPECT_EQ(CountOccurrences(
+                  ReadFile(dir / layout / "soma.log"),
+                  "label: layout '" + layout + "' (" + layout.substr(3) +
+                      " labels, given at label time) on the checkpoint's "
+                      "body 'procedural', for a layout-conditioned model "
+                      "with 60 label slots"),
+              1);
+    // The labelled trajectories are that layout's labels, in its order.
+    const C3dData labeled =
+        ReadC3d(dir / layout / "cmu_01_01_f0-599_labeled.c3d");
+    EXPECT_EQ(labeled.num_frames, 600);
+    const std::vector<std::string> expected =
+        MakeBuiltinLayout(body, layout).Labels();
+    ASSERT_GE(labeled.labels.size(), expected.size());
+    EXPECT_EQ(std::vector<std::string>(
+                  labeled.labels.begin(),
+                  labeled.labels.begin() +
+                      static_cast<std::ptrdiff_t>(expected.size())),
+              expected);
+  }
+  // label_eval with a layout given at label time: the take is scored on
+  // that layout's labels.
+  ASSERT_EQ(testing::RunSomaTask(
+                dir,
+                {"label_eval",
+                 "hydra.run.dir=eval",
+                 "task.input=" + clip.string(),
+                 "task.checkpoint=" +
+                     (dir / "sampled" / "checkpoints/best.pt").string(),
+                 "layout=cmu41"},
+                &err),
+            0)
+      << err;
+  const C3dData evaluated =
+      ReadC3d(dir / "eval" / "per_frame" / "cmu_01_01_f0-599_labeled.c3d");
+  EXPECT_EQ(evaluated.labels[0], MakeBuiltinLayout(body, "cmu41").Labels()[0]);
+
+  // A layout larger than the model's slots: one line, non-zero, both counts.
+  EXPECT_NE(label("big", dir / "sampled", "layout=superset89", &err), 0);
+  EXPECT_THAT(err,
+              ::testing::HasSubstr("layout 'superset89' has 89 labels, more "
+                                   "than the 60 label slots of checkpoint"));
+  // A fixed-head model and another layout: refused, naming both.
+  EXPECT_NE(label("fixed_pig", dir / "fixed", "layout=pig39", &err), 0);
+  EXPECT_THAT(err,
+              ::testing::HasSubstr("layout 'pig39' (39 labels) differs from "
+                                   "the layout 'cmu41' (41 labels) that "
+                                   "checkpoint"));
+  // ... its own layout given explicitly is fine.
+  EXPECT_EQ(label("fixed_cmu", dir / "fixed", "layout=cmu41", &err), 0) << err;
 }
 
 }  // namespace

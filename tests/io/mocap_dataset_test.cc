@@ -106,6 +106,42 @@ TEST(LabeledFrames, ResizeAndAppend) {
               HasSubstr("6 points appended to frames with 5 points"));
 }
 
+TEST(LabeledFrames, SlotsTravelWithTheFrames) {
+  // Layout-sampled frames carry S slot rows per frame; Append keeps them in
+  // frame order and refuses frames with another S.
+  auto with_slots = [](int64_t first, int64_t count, int num_slots) {
+    LabeledFrames frames = MakeFrames(first, count);
+    frames.num_slots = num_slots;
+    frames.Resize(count, kPoints);
+    for (int64_t i = 0; i < count * num_slots; ++i) {
+      frames.slots[static_cast<size_t>(i)] =
+          static_cast<int16_t>(first * num_slots + i);
+    }
+    return frames;
+  };
+  LabeledFrames a = with_slots(0, 3, 4);
+  a.Append(with_slots(3, 2, 4));
+  ASSERT_EQ(a.slots.size(), 20u);
+  for (int64_t f = 0; f < 5; ++f) {
+    EXPECT_EQ(a.frame_slots(f)[0], f * 4);
+    EXPECT_EQ(a.frame_slots(f)[3], f * 4 + 3);
+  }
+  LabeledFrames empty;
+  empty.Append(a);
+  EXPECT_EQ(empty.num_slots, 4);
+  EXPECT_EQ(empty.slots, a.slots);
+  EXPECT_THAT(
+      testing::ErrorMessage<ShapeError>([&] { a.Append(with_slots(5, 1, 3)); }),
+      HasSubstr("3 label slots appended to frames with 4 label slots"));
+  EXPECT_THAT(
+      testing::ErrorMessage<ShapeError>([&] { a.Append(MakeFrames(5, 1)); }),
+      HasSubstr("0 label slots"));
+  // A dataset file does not store slots yet: refused, not dropped.
+  DatasetWriter writer(testing::CreateTestDir() / "slots.h5", MakeInfo());
+  EXPECT_THAT(testing::ErrorMessage<ShapeError>([&] { writer.Append(a); }),
+              HasSubstr("label slots"));
+}
+
 TEST(DatasetWriter, RoundTripWithAttributes) {
   const fs::path path = testing::CreateTestDir() / "data.h5";
   WriteDataset(path, 300, 300);

@@ -239,12 +239,25 @@ TEST(ConditionedLabeler, StoredLayoutIsTheDefaultSlots) {
   const torch::Tensor points = torch::randn({3, 6, 3});
   EXPECT_THROW(model->forward(points), ConfigError);  // no layout yet
   const torch::Tensor q = RandomDescriptors(1, 4)[0];
-  EXPECT_THROW(model->SetLayout(q.narrow(0, 0, 3)), ShapeError);
+  EXPECT_THROW(model->SetLayout(RandomDescriptors(1, 5)[0]), ShapeError);
   model->SetLayout(q);
   const LabelerOutput a = model->forward(points);
   const LabelerOutput b =
       model->ForwardSlots(points, LabelSlots{q.expand({3, 4, kWidth}), {}});
   EXPECT_TRUE(torch::allclose(a.log_assignment, b.log_assignment, kTol, kTol));
+  // A smaller layout (a layout given at label time): its 3 labels fill the
+  // first slots, the fourth is padded, as ForwardSlots with a mask.
+  model->SetLayout(q.narrow(0, 0, 3));
+  const LabelerOutput c = model->forward(points);
+  const torch::Tensor padded =
+      torch::cat({q.narrow(0, 0, 3), torch::zeros({1, kWidth})});
+  const torch::Tensor mask = torch::tensor({true, true, true, false});
+  const LabelerOutput d = model->ForwardSlots(
+      points, LabelSlots{padded.expand({3, 4, kWidth}), mask.expand({3, 4})});
+  EXPECT_TRUE(torch::allclose(c.log_assignment, d.log_assignment, kTol, kTol));
+  EXPECT_FALSE(torch::allclose(c.log_assignment, a.log_assignment, kTol, kTol));
+  EXPECT_TRUE(c.label_ids.ne(3).all().item<bool>());  // never the padded slot
+  model->SetLayout(q);
   // The layout travels with the module's state (checkpoints).
   std::set<std::string> buffers;
   for (const auto& item : model->named_buffers()) buffers.insert(item.key());

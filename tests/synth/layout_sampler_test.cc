@@ -93,5 +93,45 @@ TEST(BuiltinLayoutSampler, LayoutLargerThanTheSlotsIsAOneLineError) {
   EXPECT_THROW(BuiltinLayoutSampler(ProceduralBody(), options), ConfigError);
 }
 
+TEST(BuiltinLayoutSampler, SlotRowsIndexTheSlotTable) {
+  LayoutSamplerOptions options;
+  options.layouts = {"cmu41", "pig39"};
+  options.max_labels = 48;
+  const BuiltinLayoutSampler sampler(ProceduralBody(), options);
+  const SlotTable table = sampler.BuildSlotTable();
+  ASSERT_EQ(table.num_rows(), 41 + 39);
+  EXPECT_EQ(sampler.row_offset(1), 41);
+  EXPECT_EQ(sampler.max_layout_markers(), 41);
+  EXPECT_EQ(table.layouts, options.layouts);
+  for (int64_t block = 0; block < 8; ++block) {
+    const LayoutDraw draw = sampler.Draw(2, block);
+    const std::vector<int16_t> rows = sampler.SlotRows(draw);
+    const Eigen::MatrixXf q = sampler.SlotDescriptors(draw);
+    ASSERT_EQ(static_cast<int>(rows.size()), 48);
+    for (int s = 0; s < 48; ++s) {
+      if (draw.slot_marker[s] < 0) {
+        EXPECT_EQ(rows[s], -1);
+        continue;
+      }
+      ASSERT_EQ(table.row_layout[rows[s]], draw.layout);
+      EXPECT_EQ(table.names[rows[s]],
+                sampler.layout(draw.layout).markers[draw.slot_marker[s]].label);
+      for (int c = 0; c < table.width; ++c) {
+        ASSERT_EQ(table.rows[static_cast<size_t>(rows[s]) * table.width + c],
+                  q(s, c));
+      }
+    }
+  }
+}
+
+TEST(BuiltinLayoutSampler, CycledLayoutsTakeTurns) {
+  LayoutSamplerOptions options;
+  options.cycle_layouts = true;
+  const BuiltinLayoutSampler sampler(ProceduralBody(), options);
+  for (int64_t block = 0; block < 9; ++block) {
+    EXPECT_EQ(sampler.Draw(4, block).layout, block % 3) << block;
+  }
+}
+
 }  // namespace
 }  // namespace soma

@@ -445,5 +445,167 @@ TEST(SynthesisOptions, DecodeReadsEveryKeyAndRejectsUnknownOnes) {
   EXPECT_NE(message.find("placement_block"), std::string::npos) << message;
 }
 
+// Layout-sampled frames (docs/any_layout_design.md, "The data").
+SynthesisOptions SampledOptions(int marker_ring) {
+  SynthesisOptions options;
+  options.marker_ring = marker_ring;
+  LayoutSamplerOptions sampler;
+  sampler.layouts = {"cmu41", "pig39", "soma53"};
+  sampler.max_labels = 60;
+  options.layout_sampler = sampler;
+  return options;
+}
+
+TEST(Synthesizer, LayoutSamplerLabelsEachBlockWithItsOwnLayoutsSlots) {
+  const Synthesizer synth = MakeSynthesizer(kBCG, SampledOptions(1));
+  ASSERT_NE(synth.layout_sampler(), nullptr);
+  ASSERT_NE(synth.slot_table(), nullptr);
+  EXPECT_EQ(synth.num_labels(), 60);
+  EXPECT_EQ(synth.num_points(), 53 + 3);  // largest layout + ghost slots
+  const SlotTable& table = *synth.slot_table();
+  EXPECT_EQ(table.num_rows(), 41 + 39 + 53);
+  EXPECT_EQ(table.width, synth.layout_sampler()->descriptor_width());
+  const int64_t frames_count = 320;
+  LabeledFrames frames;
+  synth.Generate(5, 0, frames_count, &frames, 2);
+  ASSERT_EQ(frames.num_slots, 60);
+  ASSERT_EQ(frames.num_frames(), frames_count);
+  std::set<int> layouts_drawn;
+  for (int64_t f = 0; f < frames_count; ++f) {
+    const BuiltinLayoutSampler& sampler = *synth.layout_sampler();
+    const LayoutDraw draw = sampler.Draw(5, f / 32);
+    layouts_drawn.insert(draw.layout);
+    const int k = sampler.layout(draw.layout).num_markers();
+    const std::vector<int16_t> rows = sampler.SlotRows(draw);
+    ASSERT_TRUE(std::equal(rows.begin(), rows.end(), frames.frame_slots(f)))
+        << "frame " << f;
+    std::vector<int> seen(60, 0);
+    int labelled = 0;
+    for (int p = 0; p < synth.num_points(); ++p) {
+      const int label = frames.frame_labels(f)[p];
+      const float* x = frames.frame_points(f) + 3 * p;
+      const bool present = x[0] != 0 || x[1] != 0 || x[2] != 0;
+      ASSERT_GE(label, 0);
+      ASSERT_LE(label, 60);
+      if (!present) {
+        ASSERT_EQ(label, 60);
+      }
+      if (label == 60) continue;
+      // A label is a slot of this block's draw, a row of its own layout.
+      ASSERT_GE(rows[label], 0) << "frame " << f << " slot " << label;
+      ASSERT_EQ(table.row_layout[rows[label]], draw.layout);
+      ASSERT_EQ(++seen[label], 1);
+      ++labelled;
+    }
+    ASSERT_LE(labelled, k);
+    ASSERT_GE(labelled, k - 5);  // occlusion: at most 5
+  }
+  EXPECT_GE(layouts_drawn.size(), 2u);
+}
+
+TEST(Synthesizer, LayoutSamplerPlacesTheDrawnLayoutsMarkers) {
+  // Without ring jitter and noise, a sampled frame of layout k holds the
+  // markers a synthesizer of that layout alone makes for the same frame
+  // (same shape, pose and rotation streams; its labels sorted by
+  // MergeLayouts), and each slot label names the marker at that point.
+  const std::string no_noise = "modules: []";
+  const Synthesizer sampled = MakeSynthesizer(no_noise, SampledOptions(0));
+  SynthesisOptions fixed_options;
+  fixed_options.marker_ring = 0;
+  const BuiltinLayoutSampler& sampler = *sampled.layout_sampler();
+  const SlotTable& table = *sampled.slot_table();
+  std::vector<Synthesizer> fixed;
+  fixed.reserve(static_cast<size_t>(sampler.num_layouts()));
+  for (int k = 0; k < sampler.num_layouts(); ++k) {
+    fixed.push_back(
+        MakeSynthesizer(no_noise, fixed_options, {sampler.layout(k)}));
+  }
+  LabeledFrames frames;
+  sampled.Generate(9, 0, 256, &frames);
+  int checked = 0;
+  for (int64_t f = 0; f < 256; f += 7) {
+    const LayoutDraw draw = sampler.Draw(9, f / 32);
+    const Synthesizer& alone = fixed[draw.layout];
+    LabeledFrames one;
+    alone.Generate(9, f, 1, &one);
+    const int k = sampler.layout(draw.layout).num_markers();
+    ASSERT_EQ(one.num_points, k);
+    int labelled = 0;
+    for (int p = 0; p < sampled.num_points(); ++p) {
+      const int slot = frames.frame_labels(f)[p];
+      const float* x = frames.frame_points(f) + 3 * p;
+      if (slot == 60) {
+        ASSERT_GE(p, k);  // only the padding of a smaller layout is empty
+        continue;
+      }
+      const int row = frames.frame_slots(f)[slot];
+      ASSERT_GE(row, 0);
+      const std::string name = CanonicalMarkerLabel(table.names[row]);
+      const int id = alone.superset().FindLabel(name);
+      ASSERT_GE(id, 0) << name;
+      int at = -1;
+      for (int q = 0; q < k; ++q) {
+        if (one.frame_labels(0)[q] == id) at = q;
+      }
+      ASSERT_GE(at, 0) << name;
+      for (int c = 0; c < 3; ++c) {  // exactly the same coordinates
+        ASSERT_EQ(x[c], one.frame_points(0)[3 * at + c])
+            << "frame " << f << " marker " << name;
+      }
+      ++labelled;
+    }
+    ASSERT_EQ(labelled, k);
+    ++checked;
+  }
+  EXPECT_EQ(checked, 37);
+}
+
+TEST(Synthesizer, LayoutSampledFramesAreDeterministic) {
+  const Synthesizer synth = MakeSynthesizer(kBCG, SampledOptions(1));
+  LabeledFrames a, b, c;
+  synth.Generate(3, 0, 200, &a, 1);
+  synth.Generate(3, 0, 200, &b, 3);
+  synth.Generate(3, 100, 50, &c, 1);  // frame i depends on (seed, i) only
+  EXPECT_TRUE(SameFrames(a, 0, b, 0, 200));
+  EXPECT_EQ(a.slots, b.slots);
+  EXPECT_TRUE(SameFrames(a, 100, c, 0, 50));
+  EXPECT_TRUE(std::equal(c.slots.begin(), c.slots.end(), a.frame_slots(100)));
+  // Default synthesis carries no slots.
+  LabeledFrames plain;
+  MakeSynthesizer().Generate(3, 0, 10, &plain);
+  EXPECT_EQ(plain.num_slots, 0);
+  EXPECT_TRUE(plain.slots.empty());
+}
+
+TEST(Synthesizer, LayoutSamplerBadInputIsOneLine) {
+  SynthesisOptions options = SampledOptions(1);
+  options.layout_sampler->max_labels = 50;  // soma53 does not fit
+  const std::string message = testing::ErrorMessage<ConfigError>(
+      [&] { MakeSynthesizer(kBCG, options); });
+  EXPECT_NE(message.find("soma53"), std::string::npos) << message;
+  EXPECT_NE(message.find("50"), std::string::npos) << message;
+  EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+}
+
+TEST(SynthesisOptions, DecodesALayoutSampler) {
+  const SynthesisOptions options = DecodeSynthesisOptions(
+      ParseYaml("{layout_sampler: {name: builtin, layouts: [pig39, soma53], "
+                "max_labels: 64, shuffle_slots: false}}",
+                "synth.yaml"));
+  ASSERT_TRUE(options.layout_sampler.has_value());
+  EXPECT_EQ(options.layout_sampler->layouts,
+            (std::vector<std::string>{"pig39", "soma53"}));
+  EXPECT_EQ(options.layout_sampler->max_labels, 64);
+  EXPECT_FALSE(options.layout_sampler->shuffle_slots);
+  EXPECT_FALSE(DecodeSynthesisOptions(ParseYaml("{layout_sampler: null}", "s"))
+                   .layout_sampler.has_value());
+  EXPECT_THROW(DecodeSynthesisOptions(
+                   ParseYaml("{layout_sampler: {name: random}}", "s.yaml")),
+               ConfigError);
+  EXPECT_THROW(DecodeSynthesisOptions(ParseYaml(
+                   "{layout_sampler: {name: builtin, size: 3}}", "s.yaml")),
+               ConfigError);
+}
+
 }  // namespace
 }  // namespace soma

@@ -69,6 +69,25 @@ TEST(InMemoryBatchSource, ShufflePerEpochIsDeterministic) {
             std::vector<int64_t>(full.begin() + 10, full.begin() + 15));
 }
 
+TEST(InMemoryBatchSource, SlotsFollowTheirFramesThroughTheShuffle) {
+  LabeledFrames frames = CountingFrames(20, 4);
+  frames.num_slots = 2;
+  for (int64_t f = 0; f < 20; ++f) {
+    frames.slots.push_back(static_cast<int16_t>(f));
+    frames.slots.push_back(-1);
+  }
+  const InMemoryBatchSource source(std::move(frames), {"a", "b", "c"}, true, 5);
+  LabeledFrames out;
+  source.Read(1, 3, 10, &out);
+  ASSERT_EQ(out.num_slots, 2);
+  ASSERT_EQ(out.slots.size(), 20u);
+  const std::vector<int64_t> ids = FrameIds(out);
+  for (int64_t i = 0; i < 10; ++i) {
+    EXPECT_EQ(out.frame_slots(i)[0], ids[static_cast<size_t>(i)]);
+    EXPECT_EQ(out.frame_slots(i)[1], -1);
+  }
+}
+
 TEST(Prefetcher, DeliversTheRequestsInOrder) {
   InMemoryBatchSource source(CountingFrames(40, 3), {"a", "b", "c"}, true, 3);
   std::vector<BatchRequest> requests;
