@@ -320,13 +320,13 @@ Synthesizer::Synthesizer(const BodyModel& body,
 
   // Layout membership (labels canonicalised as MergeLayouts does); with a
   // layout sampler, layout k has the first K_k slots.
-  for (size_t k = 0; k < layouts.size() && impl.layout_sampler; ++k) {
+  for (size_t k = 0; k < layouts.size(); ++k) {
     std::vector<uint8_t> mask(num_labels, 0);
-    std::fill(mask.begin(), mask.begin() + layouts[k].num_markers(), 1);
-    impl.layout_masks.push_back(std::move(mask));
-  }
-  for (size_t k = 0; k < layouts.size() && !impl.layout_sampler; ++k) {
-    std::vector<uint8_t> mask(num_labels, 0);
+    if (impl.layout_sampler) {
+      std::fill(mask.begin(), mask.begin() + layouts[k].num_markers(), 1);
+      impl.layout_masks.push_back(std::move(mask));
+      continue;
+    }
     for (const MarkerLayout::Marker& m : layouts[k].markers) {
       const int l = impl.superset.FindLabel(CanonicalMarkerLabel(m.label));
       const int id = l >= 0 ? l : impl.superset.FindLabel(m.label);

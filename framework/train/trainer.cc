@@ -263,14 +263,14 @@ struct LayoutCount {
   int64_t frames = 0;
 };
 
-/// Adds each frame's scored pairs (train/metrics.h) to its layout's count;
-/// a frame's layout is that of its first slot's row.
+/// Adds each frame's scored pairs (those with valid[i], as in
+/// train/metrics.h) to its layout's count; a frame's layout is that of its
+/// first slot's row.
 void AddLayoutCounts(const LabeledFrames& frames,
                      const SlotTable& table,
                      const int64_t* gt,
                      const int64_t* pred,
                      const bool* valid,
-                     int num_labels,
                      std::vector<LayoutCount>* counts) {
   const int64_t n = frames.num_points;
   for (int64_t f = 0; f < frames.num_frames(); ++f) {
@@ -278,13 +278,13 @@ void AddLayoutCounts(const LabeledFrames& frames,
     const int16_t* first = std::find_if(
         slots, slots + frames.num_slots, [](int16_t r) { return r >= 0; });
     if (first == slots + frames.num_slots) continue;
-    const int layout = table.row_layout[static_cast<size_t>(*first)];
-    const LabelingScore score =
-        ScoreLabels(gt + f * n, pred + f * n, valid + f * n, n, num_labels);
-    LayoutCount& c = (*counts)[static_cast<size_t>(layout)];
-    c.correct += static_cast<int64_t>(
-        std::llround(score.accuracy * static_cast<double>(score.num_pairs)));
-    c.pairs += score.num_pairs;
+    LayoutCount& c = (*counts)[static_cast<size_t>(
+        table.row_layout[static_cast<size_t>(*first)])];
+    for (int64_t i = f * n; i < (f + 1) * n; ++i) {
+      if (!valid[i]) continue;
+      ++c.pairs;
+      c.correct += gt[i] == pred[i];
+    }
     ++c.frames;
   }
 }
@@ -853,7 +853,6 @@ EpochMetrics Trainer::Validate(const BatchSource& val, EpochMetrics row) {
                         t.labels.data_ptr<int64_t>(),
                         predicted.data_ptr<int64_t>(),
                         valid.data_ptr<bool>(),
-                        static_cast<int>(num_labels),
                         &layout_counts);
       }
     }
