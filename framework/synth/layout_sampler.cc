@@ -22,12 +22,39 @@ void LayoutSamplerOptions::Validate() const {
                     value,
                     constraint));
   };
-  if (layouts.empty()) fail("layouts", "[]", "at least one layout");
+  if (layouts.empty() && random_layouts == 0) {
+    fail("layouts", "[]", "at least one layout (or random_layouts > 0)");
+  }
   if (max_labels <= 0) {
     fail("max_labels", std::to_string(max_labels), "max_labels > 0");
   }
   if (block_size <= 0) {
     fail("block_size", std::to_string(block_size), "block_size > 0");
+  }
+  if (random_layouts < 0) {
+    fail("random_layouts",
+         std::to_string(random_layouts),
+         "random_layouts >= 0");
+  }
+  if (random_layouts > 0) {
+    const std::string markers =
+        fmt::format("[{}, {}]", random_min_markers, random_max_markers);
+    if (random_min_markers < 1 || random_min_markers > random_max_markers) {
+      fail("random_markers", markers, "1 <= min <= max");
+    }
+    if (random_max_markers > max_labels) {
+      fail("random_markers", markers, "max <= max_labels (the model's slots)");
+    }
+    if (!(random_min_spacing >= 0)) {
+      fail("random_min_spacing",
+           fmt::format("{}", random_min_spacing),
+           "random_min_spacing >= 0");
+    }
+    if (!(random_share >= 0 && random_share <= 1)) {
+      fail("random_share",
+           fmt::format("{}", random_share),
+           "0 <= random_share <= 1");
+    }
   }
 }
 
@@ -36,11 +63,37 @@ LayoutSamplerOptions DecodeLayoutSamplerOptions(const ConfigNode& node) {
   LayoutSamplerOptions options;
   std::string name;
   reader.Require("name", &name);
-  reader.Check("name", name == "builtin", "name is builtin");
+  reader.Check("name",
+               name == "builtin" || name == "mixed" || name == "random",
+               "name is builtin, mixed or random");
   reader.Read("layouts", &options.layouts);
   reader.Read("max_labels", &options.max_labels);
   reader.Read("shuffle_slots", &options.shuffle_slots);
-  reader.Check("layouts", !options.layouts.empty(), "at least one layout");
+  reader.Read("random_layouts", &options.random_layouts);
+  std::vector<int> markers = {options.random_min_markers,
+                              options.random_max_markers};
+  reader.Read("random_markers", &markers);
+  reader.Check("random_markers", markers.size() == 2, "a list [min, max]");
+  options.random_min_markers = markers[0];
+  options.random_max_markers = markers[1];
+  reader.Read("random_min_spacing", &options.random_min_spacing);
+  reader.Read("random_share", &options.random_share);
+  reader.Read("random_seed", &options.random_seed);
+  // The name says what the sampler draws from.
+  const bool listed = !options.layouts.empty();
+  const bool pool = options.random_layouts > 0;
+  reader.Check("random_layouts",
+               name != "builtin" || !pool,
+               "random_layouts == 0 for name builtin (mixed or random draw "
+               "random layouts)");
+  reader.Check("random_layouts",
+               name == "builtin" || pool,
+               "random_layouts > 0 for name mixed or random");
+  reader.Check("layouts",
+               name == "random" ? !listed : listed,
+               name == "random" ? "[] for name random (mixed: listed layouts "
+                                  "and random ones)"
+                                : "at least one layout");
   reader.Check("max_labels", options.max_labels > 0, "max_labels > 0");
   reader.Check("max_labels",
                options.max_labels <= 32767,
@@ -50,8 +103,88 @@ LayoutSamplerOptions DecodeLayoutSamplerOptions(const ConfigNode& node) {
   return options;
 }
 
-BuiltinLayoutSampler::BuiltinLayoutSampler(const BodyModel& body,
-                                           LayoutSamplerOptions options)
+MarkerLayout MakeRandomLayout(const BodyModel& body,
+                              int num_markers,
+                              double min_spacing,
+                              std::string_view prefix,
+                              Rng* rng) {
+  const Eigen::Matrix3Xd& v = body.template_vertices;
+  const Eigen::Matrix3Xi& f = body.faces;
+  // Area-weighted faces of the skin but the soles.
+  std::vector<double> cumulative;
+  std::vector<int> faces;
+  double total = 0;
+  for (Eigen::Index i = 0; i < f.cols(); ++i) {
+    const Eigen::Vector3d n = (v.col(f(1, i)) - v.col(f(0, i)))
+                                  .cross(v.col(f(2, i)) - v.col(f(0, i)));
+    const double area2 = n.norm();
+    if (!(area2 > 0) || n.z() < -0.7 * area2) continue;
+    total += area2;
+    cumulative.push_back(total);
+    faces.push_back(static_cast<int>(i));
+  }
+  if (faces.empty()) {
+    throw ShapeError(fmt::format(
+        "MakeRandomLayout: body '{}' has no skin to place markers on",
+        body.name));
+  }
+  MarkerLayout layout;
+  layout.surface_model_type = body.name;
+  std::vector<int> chosen;
+  const int64_t max_attempts = 1000 + 200 * static_cast<int64_t>(num_markers);
+  for (int64_t attempt = 0;
+       attempt < max_attempts && static_cast<int>(chosen.size()) < num_markers;
+       ++attempt) {
+    const double u = rng->Uniform(0, total);
+    const size_t j =
+        std::min(static_cast<size_t>(
+                     std::upper_bound(cumulative.begin(), cumulative.end(), u) -
+                     cumulative.begin()),
+                 faces.size() - 1);
+    // A uniform point of the face; its nearest corner has the largest
+    // barycentric coordinate.
+    double a = rng->Uniform();
+    double b = rng->Uniform();
+    if (a + b > 1) {
+      a = 1 - a;
+      b = 1 - b;
+    }
+    const double c = 1 - a - b;
+    const int corner = a >= b && a >= c ? 0 : (b >= c ? 1 : 2);
+    const int vertex = f(corner, faces[j]);
+    bool free = true;
+    for (const int other : chosen) {
+      if (other == vertex ||
+          (v.col(other) - v.col(vertex)).norm() < min_spacing) {
+        free = false;
+        break;
+      }
+    }
+    if (free) chosen.push_back(vertex);
+  }
+  if (static_cast<int>(chosen.size()) < num_markers) {
+    throw ConfigError(fmt::format(
+        "MakeRandomLayout: placed {} of {} markers {} m apart on body '{}' in "
+        "{} attempts (lower layout_sampler.random_min_spacing or "
+        "random_markers)",
+        chosen.size(),
+        num_markers,
+        min_spacing,
+        body.name,
+        max_attempts));
+  }
+  for (size_t m = 0; m < chosen.size(); ++m) {
+    MarkerLayout::Marker marker;
+    marker.label = fmt::format("{}_{:02d}", prefix, m);
+    marker.vertex_ids = {chosen[m]};
+    layout.markers.push_back(std::move(marker));
+  }
+  layout.Sort();
+  return layout;
+}
+
+LayoutSampler::LayoutSampler(const BodyModel& body,
+                             LayoutSamplerOptions options)
     : options_(std::move(options)) {
   options_.Validate();
   const VertexDescriptors vertices = ComputeVertexDescriptors(body);
@@ -76,14 +209,44 @@ BuiltinLayoutSampler::BuiltinLayoutSampler(const BodyModel& body,
     descriptors_.push_back(LayoutDescriptors(vertices, layout));
     layouts_.push_back(std::move(layout));
   }
+  const Rng pool(Rng(options_.random_seed).Stream("random_layouts"));
+  for (int i = 0; i < options_.random_layouts; ++i) {
+    Rng rng = pool.Stream(static_cast<uint64_t>(i));
+    const int k = static_cast<int>(rng.UniformInt(options_.random_min_markers,
+                                                  options_.random_max_markers));
+    MarkerLayout layout = MakeRandomLayout(body,
+                                           k,
+                                           options_.random_min_spacing,
+                                           fmt::format("random{:03d}", i),
+                                           &rng);
+    row_offsets_.push_back(row_offsets_.empty()
+                               ? 0
+                               : row_offsets_.back() +
+                                     layouts_.back().num_markers());
+    descriptors_.push_back(LayoutDescriptors(vertices, layout));
+    layouts_.push_back(std::move(layout));
+  }
 }
 
-LayoutDraw BuiltinLayoutSampler::Draw(uint64_t seed, int64_t block) const {
+LayoutDraw LayoutSampler::Draw(uint64_t seed, int64_t block) const {
   Rng rng = Rng(seed).Stream("layout").Stream(static_cast<uint64_t>(block));
   LayoutDraw draw;
-  draw.layout = static_cast<int>(rng.UniformInt(0, num_layouts() - 1));
-  if (options_.cycle_layouts) {
-    draw.layout = static_cast<int>(block % num_layouts());
+  const int listed = num_listed();
+  const int pool = num_layouts() - listed;
+  if (pool == 0) {
+    // The first version's draws, kept so that its runs reproduce.
+    draw.layout = static_cast<int>(rng.UniformInt(0, listed - 1));
+    if (options_.cycle_layouts) draw.layout = static_cast<int>(block % listed);
+  } else {
+    int group = listed;  // the pool
+    if (options_.cycle_layouts) {
+      group = static_cast<int>(block % (listed + 1));
+    } else if (listed > 0 && !rng.Bernoulli(options_.random_share)) {
+      group = static_cast<int>(rng.UniformInt(0, listed - 1));
+    }
+    draw.layout = group < listed
+                      ? group
+                      : listed + static_cast<int>(rng.UniformInt(0, pool - 1));
   }
   const int k = layouts_[draw.layout].num_markers();
   draw.slot_marker.assign(options_.max_labels, -1);
@@ -96,7 +259,7 @@ LayoutDraw BuiltinLayoutSampler::Draw(uint64_t seed, int64_t block) const {
   return draw;
 }
 
-std::vector<std::string> BuiltinLayoutSampler::SlotLabels(
+std::vector<std::string> LayoutSampler::SlotLabels(
     const LayoutDraw& draw) const {
   std::vector<std::string> labels(draw.slot_marker.size());
   for (size_t s = 0; s < labels.size(); ++s) {
@@ -107,8 +270,7 @@ std::vector<std::string> BuiltinLayoutSampler::SlotLabels(
   return labels;
 }
 
-Eigen::MatrixXf BuiltinLayoutSampler::SlotDescriptors(
-    const LayoutDraw& draw) const {
+Eigen::MatrixXf LayoutSampler::SlotDescriptors(const LayoutDraw& draw) const {
   const Eigen::MatrixXf& q = descriptors_[draw.layout];
   Eigen::MatrixXf out = Eigen::MatrixXf::Zero(
       static_cast<Eigen::Index>(draw.slot_marker.size()), descriptor_width_);
@@ -120,8 +282,7 @@ Eigen::MatrixXf BuiltinLayoutSampler::SlotDescriptors(
   return out;
 }
 
-std::vector<uint8_t> BuiltinLayoutSampler::SlotMask(
-    const LayoutDraw& draw) const {
+std::vector<uint8_t> LayoutSampler::SlotMask(const LayoutDraw& draw) const {
   std::vector<uint8_t> mask(draw.slot_marker.size());
   for (size_t s = 0; s < mask.size(); ++s) {
     mask[s] = draw.slot_marker[s] >= 0 ? 1 : 0;
@@ -129,10 +290,11 @@ std::vector<uint8_t> BuiltinLayoutSampler::SlotMask(
   return mask;
 }
 
-SlotTable BuiltinLayoutSampler::BuildSlotTable() const {
+SlotTable LayoutSampler::BuildSlotTable() const {
   SlotTable table;
   table.width = descriptor_width_;
   table.layouts = options_.layouts;
+  if (num_layouts() > num_listed()) table.layouts.push_back("random");
   for (int k = 0; k < num_layouts(); ++k) {
     const Eigen::MatrixXf& q = descriptors_[k];
     for (Eigen::Index m = 0; m < q.rows(); ++m) {
@@ -140,14 +302,13 @@ SlotTable BuiltinLayoutSampler::BuildSlotTable() const {
         table.rows.push_back(q(m, c));
       }
       table.names.push_back(layouts_[k].markers[m].label);
-      table.row_layout.push_back(k);
+      table.row_layout.push_back(group(k));
     }
   }
   return table;
 }
 
-std::vector<int16_t> BuiltinLayoutSampler::SlotRows(
-    const LayoutDraw& draw) const {
+std::vector<int16_t> LayoutSampler::SlotRows(const LayoutDraw& draw) const {
   std::vector<int16_t> rows(draw.slot_marker.size(), -1);
   for (size_t s = 0; s < rows.size(); ++s) {
     if (draw.slot_marker[s] >= 0) {
@@ -158,7 +319,7 @@ std::vector<int16_t> BuiltinLayoutSampler::SlotRows(
   return rows;
 }
 
-int BuiltinLayoutSampler::max_layout_markers() const {
+int LayoutSampler::max_layout_markers() const {
   int k = 0;
   for (const MarkerLayout& layout : layouts_) {
     k = std::max(k, layout.num_markers());

@@ -103,7 +103,7 @@ struct Synthesizer::Impl {
   NoisePipeline noise;
   /// Layout-sampled frames only: the sampler, its slot table (candidates
   /// are then per table row) and the largest layout's marker count.
-  std::unique_ptr<BuiltinLayoutSampler> layout_sampler;
+  std::unique_ptr<LayoutSampler> layout_sampler;
   SlotTable slot_table;
   int max_markers = 0;
 
@@ -277,8 +277,8 @@ Synthesizer::Synthesizer(const BodyModel& body,
   if (options.layout_sampler.has_value()) {
     LayoutSamplerOptions sampler_options = *options.layout_sampler;
     sampler_options.block_size = options.placement_block;
-    impl.layout_sampler = std::make_unique<BuiltinLayoutSampler>(
-        body, std::move(sampler_options));
+    impl.layout_sampler =
+        std::make_unique<LayoutSampler>(body, std::move(sampler_options));
     impl.slot_table = impl.layout_sampler->BuildSlotTable();
     impl.max_markers = impl.layout_sampler->max_layout_markers();
     layouts.clear();
@@ -473,7 +473,7 @@ int Synthesizer::num_candidate_markers() const {
 const SlotTable* Synthesizer::slot_table() const {
   return impl_->layout_sampler ? &impl_->slot_table : nullptr;
 }
-const BuiltinLayoutSampler* Synthesizer::layout_sampler() const {
+const LayoutSampler* Synthesizer::layout_sampler() const {
   return impl_->layout_sampler.get();
 }
 

@@ -58,7 +58,7 @@ class Synthesizer {
   ///
   /// With `options.layout_sampler` the frames are for a layout-conditioned
   /// labeller instead (docs/any_layout_design.md, "The data"): `layouts` is
-  /// ignored, a BuiltinLayoutSampler draws one of its layouts per placement
+  /// ignored, a LayoutSampler draws one of its layouts per placement
   /// block (Draw(seed, block)), the block's markers are that layout's
   /// (each from its n-ring, as above), and a frame's labels are slot
   /// indices of the draw (L = max_labels slots, null = L). N = the largest
@@ -96,7 +96,7 @@ class Synthesizer {
   /// The sampled layouts' slot descriptors (null without a layout sampler).
   const SlotTable* slot_table() const;
   /// The layout sampler (null without one).
-  const BuiltinLayoutSampler* layout_sampler() const;
+  const LayoutSampler* layout_sampler() const;
 
   /// Frames [first, first + count) of the stream `seed` into `out` (resized
   /// to `count` frames of num_points()). Uses `threads` worker threads;

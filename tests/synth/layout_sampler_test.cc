@@ -1,7 +1,10 @@
 #include "framework/synth/layout_sampler.h"
 
+#include "framework/body/body_model.h"
 #include "framework/body/vertex_descriptors.h"
+#include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
+#include "framework/core/random.h"
 #include "framework/testing/body_fixture.h"
 
 #include <gtest/gtest.h>
@@ -9,6 +12,7 @@
 #include <algorithm>
 #include <set>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace soma {
@@ -16,9 +20,9 @@ namespace {
 
 using ::soma::testing::ProceduralBody;
 
-TEST(BuiltinLayoutSampler, DrawsAreAPureFunctionOfSeedAndBlock) {
-  const BuiltinLayoutSampler sampler(ProceduralBody(), {});
-  const BuiltinLayoutSampler again(ProceduralBody(), {});
+TEST(LayoutSampler, DrawsAreAPureFunctionOfSeedAndBlock) {
+  const LayoutSampler sampler(ProceduralBody(), {});
+  const LayoutSampler again(ProceduralBody(), {});
   for (int64_t block = 0; block < 20; ++block) {
     EXPECT_EQ(sampler.Draw(7, block), again.Draw(7, block)) << block;
     EXPECT_EQ(sampler.Draw(7, block), sampler.Draw(7, block)) << block;
@@ -35,11 +39,11 @@ TEST(BuiltinLayoutSampler, DrawsAreAPureFunctionOfSeedAndBlock) {
   EXPECT_EQ(sampler.BlockOf(32), 1);
 }
 
-TEST(BuiltinLayoutSampler, EveryLayoutIsDrawnAndItsMarkersFillTheSlots) {
+TEST(LayoutSampler, EveryLayoutIsDrawnAndItsMarkersFillTheSlots) {
   LayoutSamplerOptions options;
   options.layouts = {"cmu41", "pig39", "soma53"};
   options.max_labels = 60;
-  const BuiltinLayoutSampler sampler(ProceduralBody(), options);
+  const LayoutSampler sampler(ProceduralBody(), options);
   std::set<int> drawn;
   std::set<std::vector<int>> orders;
   for (int64_t block = 0; block < 60; ++block) {
@@ -77,12 +81,12 @@ TEST(BuiltinLayoutSampler, EveryLayoutIsDrawnAndItsMarkersFillTheSlots) {
   EXPECT_GT(orders.size(), 1u);  // slot order is shuffled per block
 }
 
-TEST(BuiltinLayoutSampler, LayoutLargerThanTheSlotsIsAOneLineError) {
+TEST(LayoutSampler, LayoutLargerThanTheSlotsIsAOneLineError) {
   LayoutSamplerOptions options;
   options.layouts = {"cmu41", "soma53"};
   options.max_labels = 45;
   try {
-    BuiltinLayoutSampler sampler(ProceduralBody(), options);
+    LayoutSampler sampler(ProceduralBody(), options);
     FAIL() << "expected ConfigError";
   } catch (const ConfigError& e) {
     const std::string message = e.what();
@@ -90,14 +94,14 @@ TEST(BuiltinLayoutSampler, LayoutLargerThanTheSlotsIsAOneLineError) {
     EXPECT_EQ(message.find('\n'), std::string::npos) << message;
   }
   options.layouts.clear();
-  EXPECT_THROW(BuiltinLayoutSampler(ProceduralBody(), options), ConfigError);
+  EXPECT_THROW(LayoutSampler(ProceduralBody(), options), ConfigError);
 }
 
-TEST(BuiltinLayoutSampler, SlotRowsIndexTheSlotTable) {
+TEST(LayoutSampler, SlotRowsIndexTheSlotTable) {
   LayoutSamplerOptions options;
   options.layouts = {"cmu41", "pig39"};
   options.max_labels = 48;
-  const BuiltinLayoutSampler sampler(ProceduralBody(), options);
+  const LayoutSampler sampler(ProceduralBody(), options);
   const SlotTable table = sampler.BuildSlotTable();
   ASSERT_EQ(table.num_rows(), 41 + 39);
   EXPECT_EQ(sampler.row_offset(1), 41);
@@ -124,12 +128,191 @@ TEST(BuiltinLayoutSampler, SlotRowsIndexTheSlotTable) {
   }
 }
 
-TEST(BuiltinLayoutSampler, CycledLayoutsTakeTurns) {
+TEST(LayoutSampler, CycledLayoutsTakeTurns) {
   LayoutSamplerOptions options;
   options.cycle_layouts = true;
-  const BuiltinLayoutSampler sampler(ProceduralBody(), options);
+  const LayoutSampler sampler(ProceduralBody(), options);
   for (int64_t block = 0; block < 9; ++block) {
     EXPECT_EQ(sampler.Draw(4, block).layout, block % 3) << block;
+  }
+}
+
+TEST(MakeRandomLayout, PlacesDistinctSpacedMarkersOffTheSoles) {
+  const BodyModel& body = ProceduralBody();
+  Rng rng(11);
+  const MarkerLayout layout = MakeRandomLayout(body, 60, 0.04, "r", &rng);
+  ASSERT_EQ(layout.num_markers(), 60);
+  EXPECT_EQ(layout.surface_model_type, body.name);
+  const Eigen::Matrix3Xd normals =
+      VertexNormals(body.template_vertices, body.faces);
+  std::set<std::string> labels;
+  double lowest = 1e9;
+  for (int m = 0; m < 60; ++m) {
+    const MarkerLayout::Marker& a = layout.markers[m];
+    labels.insert(a.label);
+    ASSERT_EQ(a.vertex_ids.size(), 1u);
+    EXPECT_EQ(a.type, "body");
+    EXPECT_EQ(a.distance_from_skin, kDefaultDistanceFromSkin);
+    const Eigen::Vector3d x = body.template_vertices.col(a.vertex_ids[0]);
+    lowest = std::min(lowest, x.z());
+    // A sole vertex has a normal pointing down; none is drawn.
+    EXPECT_GT(normals(2, a.vertex_ids[0]), -0.95) << a.label;
+    for (int n = m + 1; n < 60; ++n) {
+      const Eigen::Vector3d y =
+          body.template_vertices.col(layout.markers[n].vertex_ids[0]);
+      ASSERT_GE((x - y).norm(), 0.04) << a.label << " " << n;
+    }
+  }
+  EXPECT_EQ(labels.size(), 60u);
+  EXPECT_EQ(*labels.begin(), "r_00");
+  // Anywhere on the body: from the feet to the head.
+  double highest = -1e9;
+  for (const MarkerLayout::Marker& a : layout.markers) {
+    highest = std::max(highest, body.template_vertices(2, a.vertex_ids[0]));
+  }
+  EXPECT_GT(highest - lowest,
+            0.6 * (body.template_vertices.row(2).maxCoeff() -
+                   body.template_vertices.row(2).minCoeff()));
+  // The same generator state gives the same layout; another seed another.
+  Rng again(11);
+  EXPECT_EQ(MakeRandomLayout(body, 60, 0.04, "r", &again), layout);
+  Rng other(12);
+  EXPECT_NE(MakeRandomLayout(body, 60, 0.04, "r", &other), layout);
+}
+
+TEST(MakeRandomLayout, TooManyMarkersTooFarApartIsAOneLineError) {
+  Rng rng(1);
+  try {
+    MakeRandomLayout(ProceduralBody(), 90, 0.5, "r", &rng);
+    FAIL() << "expected ConfigError";
+  } catch (const ConfigError& e) {
+    const std::string message = e.what();
+    EXPECT_NE(message.find("random_min_spacing"), std::string::npos) << message;
+    EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+  }
+}
+
+ConfigNode Yaml(std::string_view text) { return ParseYaml(text, "test"); }
+
+LayoutSamplerOptions MixedOptions() {
+  LayoutSamplerOptions options;
+  options.layouts = {"cmu41", "pig39"};
+  options.max_labels = 64;
+  options.random_layouts = 12;
+  options.random_min_markers = 20;
+  options.random_max_markers = 50;
+  options.random_share = 0.5;
+  return options;
+}
+
+TEST(LayoutSampler, MixedDrawsListedAndRandomLayoutsInTheirShare) {
+  const LayoutSampler sampler(ProceduralBody(), MixedOptions());
+  ASSERT_EQ(sampler.num_listed(), 2);
+  ASSERT_EQ(sampler.num_layouts(), 2 + 12);
+  std::set<int> sizes;
+  for (int k = 2; k < 14; ++k) {
+    EXPECT_EQ(sampler.group(k), 2);
+    const int n = sampler.layout(k).num_markers();
+    EXPECT_GE(n, 20);
+    EXPECT_LE(n, 50);
+    sizes.insert(n);
+  }
+  EXPECT_GT(sizes.size(), 3u);  // the pool's sizes vary
+  // Draws: about half the blocks take the pool (binomial, 2000 blocks: the
+  // share is within 0.5 +- 0.06 with probability > 1 - 1e-7), every pool
+  // member and both listed layouts come up.
+  std::set<int> drawn;
+  int pooled = 0;
+  const int blocks = 2000;
+  for (int64_t block = 0; block < blocks; ++block) {
+    const LayoutDraw draw = sampler.Draw(3, block);
+    drawn.insert(draw.layout);
+    pooled += draw.layout >= 2 ? 1 : 0;
+    const int k = sampler.layout(draw.layout).num_markers();
+    const std::vector<uint8_t> mask = sampler.SlotMask(draw);
+    ASSERT_EQ(std::count(mask.begin(), mask.end(), 1), k);
+  }
+  EXPECT_EQ(drawn.size(), 14u);
+  EXPECT_NEAR(static_cast<double>(pooled) / blocks, 0.5, 0.06);
+  // The slot table groups the pool as one layout "random".
+  const SlotTable table = sampler.BuildSlotTable();
+  EXPECT_EQ(table.layouts,
+            (std::vector<std::string>{"cmu41", "pig39", "random"}));
+  const LayoutDraw draw = sampler.Draw(3, 0);
+  for (const int16_t row : sampler.SlotRows(draw)) {
+    if (row >= 0) {
+      ASSERT_EQ(table.row_layout[row], sampler.group(draw.layout));
+    }
+  }
+}
+
+TEST(LayoutSampler, ThePoolIsAFunctionOfItsSeed) {
+  const LayoutSampler a(ProceduralBody(), MixedOptions());
+  const LayoutSampler b(ProceduralBody(), MixedOptions());
+  LayoutSamplerOptions reseeded = MixedOptions();
+  reseeded.random_seed = 5;
+  const LayoutSampler c(ProceduralBody(), reseeded);
+  int differ = 0;
+  for (int k = 2; k < 14; ++k) {
+    EXPECT_EQ(a.layout(k), b.layout(k));
+    differ += a.layout(k) == c.layout(k) ? 0 : 1;
+  }
+  EXPECT_EQ(differ, 12);
+  // Without a pool the random options change nothing.
+  LayoutSamplerOptions listed = MixedOptions();
+  listed.random_layouts = 0;
+  LayoutSamplerOptions listed_other = listed;
+  listed_other.random_seed = 9;
+  listed_other.random_share = 0.9;
+  const LayoutSampler d(ProceduralBody(), listed);
+  const LayoutSampler e(ProceduralBody(), listed_other);
+  for (int64_t block = 0; block < 20; ++block) {
+    EXPECT_EQ(d.Draw(1, block), e.Draw(1, block));
+  }
+}
+
+TEST(LayoutSampler, CycledGroupsGiveThePoolItsTurn) {
+  LayoutSamplerOptions options = MixedOptions();
+  options.cycle_layouts = true;
+  const LayoutSampler sampler(ProceduralBody(), options);
+  for (int64_t block = 0; block < 12; ++block) {
+    EXPECT_EQ(sampler.group(sampler.Draw(4, block).layout), block % 3) << block;
+  }
+  // Random layouts only.
+  options.layouts.clear();
+  options.cycle_layouts = false;
+  const LayoutSampler pool(ProceduralBody(), options);
+  for (int64_t block = 0; block < 12; ++block) {
+    EXPECT_EQ(pool.group(pool.Draw(4, block).layout), 0);
+  }
+}
+
+TEST(LayoutSamplerOptions, DecodesTheRandomPoolAndRejectsBadValues) {
+  const LayoutSamplerOptions options = DecodeLayoutSamplerOptions(
+      Yaml("{name: mixed, layouts: [cmu41], max_labels: 80, random_layouts: "
+           "7, random_markers: [25, 60], random_min_spacing: 0.05, "
+           "random_share: 0.25, random_seed: 3}"));
+  EXPECT_EQ(options.layouts, std::vector<std::string>{"cmu41"});
+  EXPECT_EQ(options.random_layouts, 7);
+  EXPECT_EQ(options.random_min_markers, 25);
+  EXPECT_EQ(options.random_max_markers, 60);
+  EXPECT_EQ(options.random_min_spacing, 0.05);
+  EXPECT_EQ(options.random_share, 0.25);
+  EXPECT_EQ(options.random_seed, 3u);
+  EXPECT_NO_THROW(DecodeLayoutSamplerOptions(
+      Yaml("{name: random, layouts: [], random_layouts: 4}")));
+  for (const char* bad : {
+           "{name: random, layouts: []}",
+           "{name: random, random_layouts: 3}",  // listed layouts
+           "{name: mixed, layouts: [cmu41]}",    // no pool
+           "{name: builtin, random_layouts: 3}",
+           "{name: mixed, random_layouts: 2, random_markers: [60, 30]}",
+           "{name: mixed, random_layouts: 2, random_markers: [30, 200]}",
+           "{name: mixed, random_layouts: 2, random_markers: [30]}",
+           "{name: mixed, random_layouts: 2, random_share: 1.5}",
+           "{name: other}",
+       }) {
+    EXPECT_THROW(DecodeLayoutSamplerOptions(Yaml(bad)), ConfigError) << bad;
   }
 }
 

@@ -472,7 +472,7 @@ TEST(Synthesizer, LayoutSamplerLabelsEachBlockWithItsOwnLayoutsSlots) {
   ASSERT_EQ(frames.num_frames(), frames_count);
   std::set<int> layouts_drawn;
   for (int64_t f = 0; f < frames_count; ++f) {
-    const BuiltinLayoutSampler& sampler = *synth.layout_sampler();
+    const LayoutSampler& sampler = *synth.layout_sampler();
     const LayoutDraw draw = sampler.Draw(5, f / 32);
     layouts_drawn.insert(draw.layout);
     const int k = sampler.layout(draw.layout).num_markers();
@@ -503,6 +503,38 @@ TEST(Synthesizer, LayoutSamplerLabelsEachBlockWithItsOwnLayoutsSlots) {
   EXPECT_GE(layouts_drawn.size(), 2u);
 }
 
+TEST(Synthesizer, RandomLayoutPoolFramesCarryTheirLayoutsSlots) {
+  SynthesisOptions options = SampledOptions(1);
+  options.layout_sampler->random_layouts = 6;
+  options.layout_sampler->random_min_markers = 30;
+  options.layout_sampler->random_max_markers = 58;
+  const Synthesizer synth = MakeSynthesizer(kBCG, options);
+  const LayoutSampler& sampler = *synth.layout_sampler();
+  const SlotTable& table = *synth.slot_table();
+  ASSERT_EQ(table.layouts.back(), "random");
+  int pool_frames = 0;
+  LabeledFrames frames;
+  synth.Generate(2, 0, 640, &frames, 2);
+  for (int64_t f = 0; f < 640; ++f) {
+    const LayoutDraw draw = sampler.Draw(2, f / 32);
+    const int k = sampler.layout(draw.layout).num_markers();
+    pool_frames += draw.layout >= sampler.num_listed() ? 1 : 0;
+    int labelled = 0;
+    for (int p = 0; p < synth.num_points(); ++p) {
+      const int slot = frames.frame_labels(f)[p];
+      if (slot == 60) continue;
+      const int row = frames.frame_slots(f)[slot];
+      ASSERT_GE(row, 0) << "frame " << f << " slot " << slot;
+      ASSERT_EQ(table.row_layout[row], sampler.group(draw.layout));
+      ++labelled;
+    }
+    ASSERT_LE(labelled, k);
+    ASSERT_GE(labelled, k - 5);
+  }
+  EXPECT_GT(pool_frames, 0);
+  EXPECT_LT(pool_frames, 640);
+}
+
 TEST(Synthesizer, LayoutSamplerPlacesTheDrawnLayoutsMarkers) {
   // Without ring jitter and noise, a sampled frame of layout k holds the
   // markers a synthesizer of that layout alone makes for the same frame
@@ -512,7 +544,7 @@ TEST(Synthesizer, LayoutSamplerPlacesTheDrawnLayoutsMarkers) {
   const Synthesizer sampled = MakeSynthesizer(no_noise, SampledOptions(0));
   SynthesisOptions fixed_options;
   fixed_options.marker_ring = 0;
-  const BuiltinLayoutSampler& sampler = *sampled.layout_sampler();
+  const LayoutSampler& sampler = *sampled.layout_sampler();
   const SlotTable& table = *sampled.slot_table();
   std::vector<Synthesizer> fixed;
   fixed.reserve(static_cast<size_t>(sampler.num_layouts()));
