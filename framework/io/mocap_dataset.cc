@@ -78,7 +78,10 @@ const std::set<std::string>& ReservedAttributes() {
                                               "seed",
                                               "config",
                                               "code_version",
-                                              "chunk_frames"};
+                                              "chunk_frames",
+                                              "num_slots",
+                                              "slot_names",
+                                              "slot_layouts"};
   return names;
 }
 
@@ -157,6 +160,53 @@ Hid OpenDataset(hid_t file_id,
   return dataset;
 }
 
+/// ShapeError unless `info`'s slot table fits frames of info.num_slots slots:
+/// rows of the declared width, a name and a layout per row, layouts in
+/// range, names without newlines (stored joined by them), L == S.
+void CheckSlotTable(const DatasetInfo& info, const std::string& file) {
+  const SlotTable& table = info.slot_table;
+  auto fail = [&](const std::string& what) {
+    throw ShapeError(fmt::format("{}: slot table: {}", file, what));
+  };
+  if (info.num_slots < 0) {
+    fail(fmt::format("num_slots = {}, expected >= 0", info.num_slots));
+  }
+  if (info.num_labels() != info.num_slots) {
+    fail(
+        fmt::format("{} labels for {} slots (the labels of slotted frames "
+                    "are slot indices)",
+                    info.num_labels(),
+                    info.num_slots));
+  }
+  const int64_t rows = table.num_rows();
+  if (table.width < 1 || rows < 1 ||
+      static_cast<int64_t>(table.rows.size()) != rows * table.width) {
+    fail(fmt::format("{} values for width {}, expected rows x width >= 1",
+                     table.rows.size(),
+                     table.width));
+  }
+  if (rows > 32767) {
+    fail(fmt::format("{} rows do not fit int16 slot rows", rows));
+  }
+  if (static_cast<int64_t>(table.names.size()) != rows ||
+      static_cast<int64_t>(table.row_layout.size()) != rows) {
+    fail(fmt::format("{} rows, {} names, {} row layouts",
+                     rows,
+                     table.names.size(),
+                     table.row_layout.size()));
+  }
+  for (int64_t g = 0; g < rows; ++g) {
+    const int k = table.row_layout[g];
+    if (k < 0 || k >= static_cast<int>(table.layouts.size())) {
+      fail(fmt::format(
+          "row {} has layout {}, outside [0, {})", g, k, table.layouts.size()));
+    }
+    if (table.names[g].find('\n') != std::string::npos) {
+      fail(fmt::format("row {} has a name with a newline", g));
+    }
+  }
+}
+
 }  // namespace
 
 // ---- DatasetWriter.
@@ -169,6 +219,7 @@ struct DatasetWriter::Impl {
   Hid file;
   Hid points;
   Hid labels;
+  Hid slots;  // only with num_slots > 0
   int chunk_frames = kChunkFrames;
   LabeledFrames buffer;  // < chunk_frames frames not yet written
   int64_t written = 0;   // frames in the file
@@ -215,7 +266,10 @@ struct DatasetWriter::Impl {
 
   /// Writes one chunk: `count` <= chunk_frames frames at frame `written`
   /// (a multiple of chunk_frames), zero-padded to a full chunk.
-  void WriteChunk(const float* p, const int16_t* l, int64_t count) {
+  void WriteChunk(const float* p,
+                  const int16_t* l,
+                  const int16_t* sl,
+                  int64_t count) {
     const hsize_t n = static_cast<hsize_t>(info.num_points);
     const hsize_t begin = static_cast<hsize_t>(written);
     const hsize_t total = begin + static_cast<hsize_t>(count);
@@ -248,22 +302,45 @@ struct DatasetWriter::Impl {
               labels.get(), H5P_DEFAULT, 0, offset, size, compressed.data()),
           what);
     }
+    if (info.num_slots > 0) {
+      const hsize_t s = static_cast<hsize_t>(info.num_slots);
+      const hsize_t dims[2] = {total, s};
+      CheckStatus(H5Dset_extent(slots.get(), dims), what);
+      const size_t chunk_slots = static_cast<size_t>(chunk_frames) * s * 2;
+      staging.assign(chunk_slots, 0);
+      std::memcpy(staging.data(), sl, static_cast<size_t>(count) * s * 2);
+      const size_t size = Filter(chunk_slots, 2);
+      const hsize_t offset[2] = {begin, 0};
+      CheckStatus(
+          H5Dwrite_chunk(
+              slots.get(), H5P_DEFAULT, 0, offset, size, compressed.data()),
+          what);
+    }
     written = static_cast<int64_t>(total);
   }
 
-  void WriteFrames(const float* p, const int16_t* l, int64_t count) {
+  void WriteFrames(const float* p,
+                   const int16_t* l,
+                   const int16_t* sl,
+                   int64_t count) {
     const int64_t n = info.num_points;
+    const int64_t s = info.num_slots;
     for (int64_t f = 0; f < count; f += chunk_frames) {
-      WriteChunk(
-          p + f * n * 3, l + f * n, std::min<int64_t>(chunk_frames, count - f));
+      WriteChunk(p + f * n * 3,
+                 l + f * n,
+                 s > 0 ? sl + f * s : nullptr,
+                 std::min<int64_t>(chunk_frames, count - f));
     }
   }
 
   void FlushBuffer() {
-    WriteFrames(
-        buffer.points.data(), buffer.labels.data(), buffer.num_frames());
+    WriteFrames(buffer.points.data(),
+                buffer.labels.data(),
+                buffer.slots.data(),
+                buffer.num_frames());
     buffer.points.clear();
     buffer.labels.clear();
+    buffer.slots.clear();
   }
 
   ~Impl() {
@@ -273,8 +350,10 @@ struct DatasetWriter::Impl {
   void Abandon() {
     buffer.points.clear();
     buffer.labels.clear();
+    buffer.slots.clear();
     points.Reset();
     labels.Reset();
+    slots.Reset();
     file.Reset();
     std::error_code ec;
     std::filesystem::remove(temp, ec);
@@ -299,6 +378,7 @@ DatasetWriter::DatasetWriter(const std::filesystem::path& path,
     throw ShapeError(fmt::format(
         "{}: {} labels do not fit int16 label ids", s.name, info.num_labels()));
   }
+  if (info.num_slots != 0) CheckSlotTable(info, s.name);
   for (const auto& [key, value] : info.attributes) {
     if (ReservedAttributes().count(key) > 0 || key.empty()) {
       throw IoError(fmt::format(
@@ -311,6 +391,7 @@ DatasetWriter::DatasetWriter(const std::filesystem::path& path,
   s.chunk_frames = static_cast<int>(std::clamp<size_t>(
       kMaxChunkBytes / frame_bytes, 1, static_cast<size_t>(kChunkFrames)));
   s.buffer.num_points = info.num_points;
+  s.buffer.num_slots = info.num_slots;
   s.buffer.points.reserve(static_cast<size_t>(s.chunk_frames) * frame_bytes /
                           sizeof(float));
   s.buffer.labels.reserve(static_cast<size_t>(s.chunk_frames) *
@@ -372,6 +453,54 @@ DatasetWriter::DatasetWriter(const std::filesystem::path& path,
       s.labels =
           make_dataset("labels", 2, dims, max_dims, chunk_dims, H5T_STD_I16LE);
     }
+    if (info.num_slots > 0) {
+      const hsize_t slots = static_cast<hsize_t>(info.num_slots);
+      {
+        const hsize_t dims[2] = {0, slots};
+        const hsize_t max_dims[2] = {H5S_UNLIMITED, slots};
+        const hsize_t chunk_dims[2] = {chunk, slots};
+        s.slots =
+            make_dataset("slots", 2, dims, max_dims, chunk_dims, H5T_STD_I16LE);
+      }
+      // The slot table: small, written once through HDF5's own filters.
+      const SlotTable& table = info.slot_table;
+      const hsize_t rows = static_cast<hsize_t>(table.num_rows());
+      const hsize_t width = static_cast<hsize_t>(table.width);
+      {
+        const hsize_t dims[2] = {rows, width};
+        Hid descriptors = make_dataset(
+            "slot_descriptors", 2, dims, dims, dims, H5T_IEEE_F32LE);
+        CheckStatus(H5Dwrite(descriptors.get(),
+                             H5T_NATIVE_FLOAT,
+                             H5S_ALL,
+                             H5S_ALL,
+                             H5P_DEFAULT,
+                             table.rows.data()),
+                    what);
+      }
+      {
+        const hsize_t dims[1] = {rows};
+        Hid layout =
+            make_dataset("slot_layout", 1, dims, dims, dims, H5T_STD_I32LE);
+        const std::vector<int32_t> values(table.row_layout.begin(),
+                                          table.row_layout.end());
+        CheckStatus(H5Dwrite(layout.get(),
+                             H5T_NATIVE_INT32,
+                             H5S_ALL,
+                             H5S_ALL,
+                             H5P_DEFAULT,
+                             values.data()),
+                    what);
+      }
+      WriteNumberAttribute<int32_t>(root, "num_slots", info.num_slots, s.name);
+      // One string (names joined by newlines): an attribute of thousands of
+      // strings would exceed HDF5's 64 KiB compact attribute limit.
+      WriteStringAttribute(root,
+                           "slot_names",
+                           fmt::format("{}", fmt::join(table.names, "\n")),
+                           s.name);
+      WriteStringArrayAttribute(root, "slot_layouts", table.layouts, s.name);
+    }
 
     WriteStringAttribute(root, "format", kFormatName, s.name);
     WriteNumberAttribute<int32_t>(
@@ -411,11 +540,13 @@ void DatasetWriter::Append(const LabeledFrames& frames) {
   }
   const int64_t count = frames.num_frames();
   if (count == 0) return;
-  if (frames.num_slots != 0) {
+  if (frames.num_slots != s.info.num_slots) {
     throw ShapeError(fmt::format(
-        "{}: frames with per-frame label slots (a layout-sampled stream, "
-        "synth.layout_sampler) cannot be stored in a dataset yet",
-        s.name));
+        "{}: appended frames have {} label slots per frame, the dataset {} "
+        "(DatasetInfo::num_slots; slots come from synth.layout_sampler)",
+        s.name,
+        frames.num_slots,
+        s.info.num_slots));
   }
   if (frames.num_points != s.info.num_points) {
     throw ShapeError(
@@ -449,6 +580,32 @@ void DatasetWriter::Append(const LabeledFrames& frames) {
                       null_label));
     }
   }
+  const int64_t num_slots = s.info.num_slots;
+  if (num_slots > 0) {
+    if (static_cast<int64_t>(frames.slots.size()) != count * num_slots) {
+      throw ShapeError(
+          fmt::format("{}: appended frames have {} slot rows, "
+                      "expected {} frames x {} slots",
+                      s.name,
+                      frames.slots.size(),
+                      count,
+                      num_slots));
+    }
+    const int64_t rows = s.info.slot_table.num_rows();
+    for (size_t i = 0; i < frames.slots.size(); ++i) {
+      const int16_t row = frames.slots[i];
+      if (row < -1 || row >= rows) {
+        throw ShapeError(fmt::format(
+            "{}: slot row {} at frame {} slot {} is outside [-1, {}) (the "
+            "slot table's rows; -1 = padded)",
+            s.name,
+            row,
+            static_cast<int64_t>(i) / num_slots,
+            static_cast<int64_t>(i) % num_slots,
+            rows));
+      }
+    }
+  }
   std::lock_guard lock(Hdf5Mutex());
   int64_t f = 0;
   const int64_t chunk = s.chunk_frames;
@@ -458,7 +615,10 @@ void DatasetWriter::Append(const LabeledFrames& frames) {
     const int64_t buffered = s.buffer.num_frames();
     if (buffered == 0 && count - f >= chunk) {
       const int64_t whole = (count - f) / chunk * chunk;
-      s.WriteFrames(frames.frame_points(f), frames.frame_labels(f), whole);
+      s.WriteFrames(frames.frame_points(f),
+                    frames.frame_labels(f),
+                    num_slots > 0 ? frames.frame_slots(f) : nullptr,
+                    whole);
       f += whole;
       continue;
     }
@@ -469,6 +629,11 @@ void DatasetWriter::Append(const LabeledFrames& frames) {
     s.buffer.labels.insert(s.buffer.labels.end(),
                            frames.frame_labels(f),
                            frames.frame_labels(f) + take * n);
+    if (num_slots > 0) {
+      s.buffer.slots.insert(s.buffer.slots.end(),
+                            frames.frame_slots(f),
+                            frames.frame_slots(f) + take * num_slots);
+    }
     f += take;
     if (s.buffer.num_frames() == chunk) s.FlushBuffer();
   }
@@ -540,7 +705,8 @@ void DatasetWriter::Close() {
     s.FlushBuffer();
     WriteNumberAttribute<int64_t>(
         s.file.get(), "num_frames", s.written, s.name);
-    const bool ok = s.points.Reset() & s.labels.Reset() & s.file.Reset();
+    const bool ok =
+        s.points.Reset() & s.labels.Reset() & s.slots.Reset() & s.file.Reset();
     if (!ok) throw IoError(fmt::format("{}: closing the file failed", s.name));
     CommitTempFile(s.temp, s.path);
   } catch (...) {
@@ -559,6 +725,7 @@ struct DatasetReader::Impl {
   Hid file;
   Hid points;
   Hid labels;
+  Hid slots;  // only with info.num_slots > 0
 
   /// Reads frames [begin, begin + count) into out->frame_*(offset).
   void ReadRun(int64_t begin,
@@ -571,16 +738,17 @@ struct DatasetReader::Impl {
                     name,
                     begin,
                     begin + count);
-    // Frames [begin, begin + count) of a dataset whose frames are `n` x
+    // Frames [begin, begin + count) of a dataset whose frames are `rows` x
     // `width` values (width 0: rank 2).
     auto read_frames = [&](hid_t dataset,
+                           hsize_t rows,
                            hsize_t width,
                            hid_t type,
                            void* dst) {
       Hid space = Check(H5Dget_space(dataset), H5Sclose, what);
       const int rank = width > 0 ? 3 : 2;
       const hsize_t start[3] = {static_cast<hsize_t>(begin), 0, 0};
-      const hsize_t size[3] = {static_cast<hsize_t>(count), n, width};
+      const hsize_t size[3] = {static_cast<hsize_t>(count), rows, width};
       CheckStatus(
           H5Sselect_hyperslab(
               space.get(), H5S_SELECT_SET, start, nullptr, size, nullptr),
@@ -590,8 +758,31 @@ struct DatasetReader::Impl {
           H5Dread(dataset, type, memory.get(), space.get(), H5P_DEFAULT, dst),
           what);
     };
-    read_frames(points.get(), 3, H5T_NATIVE_FLOAT, out->frame_points(offset));
-    read_frames(labels.get(), 0, H5T_NATIVE_INT16, out->frame_labels(offset));
+    read_frames(
+        points.get(), n, 3, H5T_NATIVE_FLOAT, out->frame_points(offset));
+    read_frames(
+        labels.get(), n, 0, H5T_NATIVE_INT16, out->frame_labels(offset));
+    if (info.num_slots > 0) {
+      const int64_t num_slots = info.num_slots;
+      read_frames(slots.get(),
+                  static_cast<hsize_t>(num_slots),
+                  0,
+                  H5T_NATIVE_INT16,
+                  out->frame_slots(offset));
+      const int16_t* sl = out->frame_slots(offset);
+      const int64_t rows = info.slot_table.num_rows();
+      for (int64_t i = 0; i < count * num_slots; ++i) {
+        if (sl[i] < -1 || sl[i] >= rows) {
+          throw IoError(Bad(name,
+                            fmt::format("slot row {} at frame {} slot {} is "
+                                        "outside [-1, {})",
+                                        sl[i],
+                                        begin + i / num_slots,
+                                        i % num_slots,
+                                        rows)));
+        }
+      }
+    }
     const int16_t null_label = static_cast<int16_t>(info.num_labels());
     const int16_t* l = out->frame_labels(offset);
     const int64_t size = count * info.num_points;
@@ -689,6 +880,56 @@ DatasetReader::DatasetReader(const std::filesystem::path& path)
                         label_frames)));
   }
   info.num_frames = static_cast<int64_t>(point_frames);
+  if (H5Lexists(root, "slots", H5P_DEFAULT) > 0) {
+    // Label slots (docs/dataset_format.md, "Label slots").
+    info.num_slots = ReadNumberAttribute<int32_t>(root, "num_slots", bad);
+    if (info.num_slots < 1 || info.num_slots != info.num_labels()) {
+      throw IoError(Bad(s.name,
+                        fmt::format("num_slots = {}, expected the number of "
+                                    "labels ({})",
+                                    info.num_slots,
+                                    info.num_labels())));
+    }
+    hsize_t slot_frames = 0;
+    s.slots = OpenDataset(root,
+                          "slots",
+                          s.name,
+                          2,
+                          {static_cast<hsize_t>(info.num_slots)},
+                          H5T_INTEGER,
+                          2,
+                          "int16",
+                          &slot_frames);
+    if (slot_frames != point_frames) {
+      throw IoError(
+          Bad(s.name,
+              fmt::format("'/slots' has {} frames but '/points' has {}",
+                          slot_frames,
+                          point_frames)));
+    }
+    SlotTable& table = info.slot_table;
+    std::vector<hsize_t> dims;
+    table.rows =
+        hdf5::ReadDataset<float>(root, "slot_descriptors", {0, 0}, bad, &dims);
+    table.width = static_cast<int>(dims[1]);
+    const std::vector<int32_t> layouts =
+        hdf5::ReadDataset<int32_t>(root, "slot_layout", {dims[0]}, bad);
+    table.row_layout.assign(layouts.begin(), layouts.end());
+    const std::string names = ReadStringAttribute(root, "slot_names", bad);
+    size_t start = 0;
+    while (dims[0] > 0) {
+      const size_t end = names.find('\n', start);
+      table.names.push_back(names.substr(start, end - start));
+      if (end == std::string::npos) break;
+      start = end + 1;
+    }
+    table.layouts = ReadStringArrayAttribute(root, "slot_layouts", bad);
+    try {
+      CheckSlotTable(info, s.name);
+    } catch (const ShapeError& e) {
+      throw IoError(Bad(s.name, e.what()));
+    }
+  }
   if (H5Aexists(root, "num_frames") > 0) {
     const int64_t declared =
         ReadNumberAttribute<int64_t>(root, "num_frames", bad);
@@ -758,7 +999,7 @@ void DatasetReader::Read(int64_t begin,
                     begin + count,
                     s.info.num_frames));
   }
-  out->num_slots = 0;
+  out->num_slots = s.info.num_slots;
   out->Resize(count, s.info.num_points);
   if (count == 0) return;
   std::lock_guard lock(Hdf5Mutex());
@@ -818,6 +1059,7 @@ void DatasetReader::ReadIndices(const std::vector<int64_t>& indices,
   std::sort(sorted.begin(), sorted.end());
   sorted.erase(std::unique(sorted.begin(), sorted.end()), sorted.end());
   LabeledFrames unique;
+  unique.num_slots = s.info.num_slots;
   unique.Resize(static_cast<int64_t>(sorted.size()), s.info.num_points);
   {
     std::lock_guard lock(Hdf5Mutex());
@@ -833,7 +1075,7 @@ void DatasetReader::ReadIndices(const std::vector<int64_t>& indices,
     }
   }
   const int64_t n = s.info.num_points;
-  out->num_slots = 0;
+  out->num_slots = s.info.num_slots;
   out->Resize(static_cast<int64_t>(indices.size()), s.info.num_points);
   for (size_t k = 0; k < indices.size(); ++k) {
     const int64_t u =
@@ -844,6 +1086,9 @@ void DatasetReader::ReadIndices(const std::vector<int64_t>& indices,
                 out->frame_points(static_cast<int64_t>(k)));
     std::copy_n(
         unique.frame_labels(u), n, out->frame_labels(static_cast<int64_t>(k)));
+    std::copy_n(unique.frame_slots(u),
+                s.info.num_slots,
+                out->frame_slots(static_cast<int64_t>(k)));
   }
 }
 

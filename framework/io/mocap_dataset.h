@@ -83,6 +83,10 @@ struct DatasetInfo {
   std::string config_yaml;   // composed config that produced the data
   std::string code_version;  // BuildInfo (git describe)
   std::map<std::string, std::string> attributes;  // free-form provenance
+  /// Frames with label slots (a layout-sampled stream): S per frame, and the
+  /// table their rows index. 0 = none (labels index `labels`).
+  int num_slots = 0;
+  SlotTable slot_table;
 
   int num_labels() const { return static_cast<int>(labels.size()); }
 };
@@ -92,14 +96,17 @@ struct DatasetInfo {
 /// final name. Memory use is bounded by one chunk.
 class DatasetWriter {
  public:
-  /// IoError if the directory cannot be written; ShapeError for N < 1.
+  /// IoError if the directory cannot be written; ShapeError for N < 1, and
+  /// for num_slots > 0 with a slot table that is empty or inconsistent, or
+  /// with L != S (the labels of slotted frames are slot indices).
   DatasetWriter(const std::filesystem::path& path, const DatasetInfo& info);
   ~DatasetWriter();  // abandons (removes the temp file) if not Closed
   DatasetWriter(const DatasetWriter&) = delete;
   DatasetWriter& operator=(const DatasetWriter&) = delete;
 
-  /// ShapeError if frames.num_points != info.num_points or a label id is
-  /// outside [0, L].
+  /// ShapeError if frames.num_points != info.num_points, a label id is
+  /// outside [0, L], or the frames' slots disagree with info.num_slots or
+  /// index no row of info.slot_table.
   void Append(const LabeledFrames& frames);
   int64_t num_frames() const;
   /// An extra per-point float32 dataset `/<name>` (F x N) beside points and

@@ -46,6 +46,11 @@ class SynthTask : public Task {
     info.num_points = synthesizer.num_points();
     info.frame_rate = synthesizer.frame_rate();
     info.seed = ctx.seed;
+    if (const SlotTable* table = synthesizer.slot_table(); table != nullptr) {
+      // A layout per placement block: the labels are slot indices.
+      info.num_slots = synthesizer.num_labels();
+      info.slot_table = *table;
+    }
     info.config_yaml = DumpYaml(cfg);
     const BuildInfo build_info = GetBuildInfo();
     const GitState git = QueryGit();

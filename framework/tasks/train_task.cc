@@ -124,21 +124,22 @@ class TrainTask : public Task {
              "train: labeler with {} trainable parameters",
              CountTrainableParameters(*model));
     if (model->conditioned()) {
-      if (!train_synth.has_value()) {
-        throw ConfigError(
-            "model=soma_any_layout trains on task.data=synth only (its label "
-            "slots come from the synthesizer's layout)");
-      }
-      if (const SlotTable* table = train_synth->slot_table();
-          table != nullptr) {
-        // A layout per placement block (synth.layout_sampler): each batch
-        // brings its slots; the checkpoint holds no layout (its labels are
-        // the slots, its config the sampler), so `soma label` needs one.
+      if (const SlotTable* table = train->slot_table(); table != nullptr) {
+        // A layout per placement block (synth.layout_sampler, or a dataset
+        // `soma synth` wrote with one): each batch brings its slots; the
+        // checkpoint holds no layout (its labels are the slots, its config
+        // the sampler), so `soma label` needs one.
         SOMA_LOG(INFO,
                  "train: layout-conditioned labeler, {} label slots, a "
                  "layout per placement block sampled from [{}]",
                  labels.size(),
                  fmt::join(table->layouts, ", "));
+      } else if (!train_synth.has_value()) {
+        throw ConfigError(fmt::format(
+            "model=soma_any_layout trains on task.data=synth, or on a dataset "
+            "of frames with label slots (soma synth with "
+            "synth/layout_sampler=...); {} has none",
+            options_.train_file));
       } else {
         // One fixed layout per run: the label slots are the synthesizer's
         // layout, saved with the checkpoints.
@@ -161,11 +162,23 @@ class TrainTask : public Task {
     identity.model_config = ConfigNode::EmptyMap();
     identity.model_config.Set("model", cfg.at("model"));
     identity.model_config.Set("normalization", cfg.at("normalization"));
-    if (train_synth.has_value() && train_synth->slot_table() != nullptr) {
+    if (const SlotTable* table = train->slot_table(); table != nullptr) {
       // Trained on sampled layouts: recorded with the model (a resume must
-      // sample the same ones; `soma label` asks for a layout).
-      identity.model_config.Set("layout_sampler",
-                                cfg.at("synth").at("layout_sampler"));
+      // sample the same ones; `soma label` asks for a layout). From a
+      // dataset: its file and the layouts of its slot table.
+      if (train_synth.has_value()) {
+        identity.model_config.Set("layout_sampler",
+                                  cfg.at("synth").at("layout_sampler"));
+      } else {
+        ConfigNode sampler = ConfigNode::EmptyMap();
+        sampler.Set("dataset", ConfigNode::FromString(options_.train_file));
+        ConfigNode layouts = ConfigNode::EmptyList();
+        for (const std::string& name : table->layouts) {
+          layouts.Append(ConfigNode::FromString(name));
+        }
+        sampler.Set("layouts", std::move(layouts));
+        identity.model_config.Set("layout_sampler", std::move(sampler));
+      }
     }
     identity.labels = labels;
     identity.config_yaml = DumpYaml(cfg);

@@ -161,6 +161,8 @@ class Hdf5BatchSource : public BatchSource {
   const std::vector<std::string>& labels() const override;
   int num_points() const override;
   int64_t frames_per_epoch() const override { return frames_per_epoch_; }
+  /// The dataset's slot table when its frames carry label slots.
+  const SlotTable* slot_table() const override;
   void Read(int epoch,
             int64_t begin,
             int64_t count,

@@ -46,6 +46,11 @@ int Hdf5BatchSource::num_points() const {
   return impl_->reader.info().num_points;
 }
 
+const SlotTable* Hdf5BatchSource::slot_table() const {
+  const DatasetInfo& info = impl_->reader.info();
+  return info.num_slots > 0 ? &info.slot_table : nullptr;
+}
+
 void Hdf5BatchSource::Read(int epoch,
                            int64_t begin,
                            int64_t count,

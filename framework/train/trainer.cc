@@ -902,6 +902,13 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
         "(synth.layout_sampler) but the model has a fixed layout; use "
         "model=soma_any_layout");
   }
+  if ((train.slot_table() == nullptr) != (val.slot_table() == nullptr)) {
+    throw ConfigError(fmt::format(
+        "Trainer: the {} data has a layout per placement block (label slots) "
+        "and the {} data has not; give both sets the same kind of frames",
+        train.slot_table() != nullptr ? "train" : "val",
+        train.slot_table() != nullptr ? "val" : "train"));
+  }
   const int64_t num_batches = train.frames_per_epoch() / options_.batch_size;
   if (num_batches < 1) {
     throw ConfigError(fmt::format(

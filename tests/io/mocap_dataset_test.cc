@@ -25,6 +25,7 @@
 #include <set>
 #include <string>
 #include <sys/wait.h>
+#include <utility>
 #include <vector>
 
 namespace soma {
@@ -136,10 +137,128 @@ TEST(LabeledFrames, SlotsTravelWithTheFrames) {
   EXPECT_THAT(
       testing::ErrorMessage<ShapeError>([&] { a.Append(MakeFrames(5, 1)); }),
       HasSubstr("0 label slots"));
-  // A dataset file does not store slots yet: refused, not dropped.
+  // A dataset without slots refuses slotted frames instead of dropping them.
   DatasetWriter writer(testing::CreateTestDir() / "slots.h5", MakeInfo());
   EXPECT_THAT(testing::ErrorMessage<ShapeError>([&] { writer.Append(a); }),
-              HasSubstr("label slots"));
+              HasSubstr("4 label slots per frame, the dataset 0"));
+}
+
+constexpr int kSlots = 4;
+
+/// A dataset of slotted frames: L = S = 4 slot labels, a table of 6 rows of
+/// width 3 over two layouts.
+DatasetInfo SlottedInfo() {
+  DatasetInfo info = MakeInfo();
+  info.labels = {"slot0", "slot1", "slot2", "slot3"};
+  info.num_slots = kSlots;
+  SlotTable& table = info.slot_table;
+  table.width = 3;
+  for (int g = 0; g < 6; ++g) {
+    for (int c = 0; c < 3; ++c) table.rows.push_back(0.25f * g - 0.1f * c);
+    table.names.push_back(fmt::format("M{}", g));
+    table.row_layout.push_back(g < 4 ? 0 : 1);
+  }
+  table.layouts = {"cmu41", "random"};
+  return info;
+}
+
+/// MakeFrames with L = 4 and slot rows: frame f's slots are rows
+/// (f + s) % 7 - 1 (-1 = padded).
+LabeledFrames SlottedFrames(int64_t first, int64_t count) {
+  LabeledFrames frames = MakeFrames(first, count, kSlots);
+  frames.num_slots = kSlots;
+  frames.Resize(count, kPoints);
+  for (int64_t i = 0; i < count; ++i) {
+    for (int s = 0; s < kSlots; ++s) {
+      frames.frame_slots(i)[s] = static_cast<int16_t>((first + i + s) % 7 - 1);
+    }
+  }
+  return frames;
+}
+
+TEST(DatasetWriter, SlottedFramesRoundTripWithTheirSlotTable) {
+  const fs::path path = testing::CreateTestDir() / "slotted.h5";
+  {
+    DatasetWriter writer(path, SlottedInfo());
+    // Uneven blocks: partial chunks, whole chunks, a partial tail.
+    for (const auto& [first, count] : std::vector<std::pair<int, int>>{
+             {0, 10}, {10, 130}, {140, 3}, {143, 57}}) {
+      writer.Append(SlottedFrames(first, count));
+    }
+    writer.Close();
+  }
+  DatasetReader reader(path);
+  const DatasetInfo& info = reader.info();
+  const DatasetInfo expected = SlottedInfo();
+  EXPECT_EQ(info.num_slots, kSlots);
+  EXPECT_EQ(info.slot_table.width, 3);
+  EXPECT_EQ(info.slot_table.rows, expected.slot_table.rows);
+  EXPECT_EQ(info.slot_table.names, expected.slot_table.names);
+  EXPECT_EQ(info.slot_table.row_layout, expected.slot_table.row_layout);
+  EXPECT_EQ(info.slot_table.layouts, expected.slot_table.layouts);
+  EXPECT_EQ(info.attributes.count("slot_names"), 0u);  // reserved, not free
+  LabeledFrames range;
+  reader.Read(60, 80, &range);
+  const LabeledFrames want = SlottedFrames(60, 80);
+  ExpectFramesEqual(range, want);
+  EXPECT_EQ(range.num_slots, kSlots);
+  EXPECT_EQ(range.slots, want.slots);
+  const std::vector<int64_t> indices = {199, 3, 64, 63, 3};
+  LabeledFrames picked;
+  reader.ReadIndices(indices, &picked);
+  ASSERT_EQ(picked.num_slots, kSlots);
+  for (size_t k = 0; k < indices.size(); ++k) {
+    const LabeledFrames one = SlottedFrames(indices[k], 1);
+    for (int s = 0; s < kSlots; ++s) {
+      EXPECT_EQ(picked.frame_slots(static_cast<int64_t>(k))[s],
+                one.frame_slots(0)[s])
+          << k << " " << s;
+    }
+  }
+  // A dataset without slots reads as before.
+  const fs::path plain = testing::CreateTestDir() / "plain.h5";
+  WriteDataset(plain, 10);
+  DatasetReader plain_reader(plain);
+  EXPECT_EQ(plain_reader.info().num_slots, 0);
+  plain_reader.Read(0, 10, &range);
+  EXPECT_EQ(range.num_slots, 0);
+  EXPECT_TRUE(range.slots.empty());
+}
+
+TEST(DatasetWriter, SlottedBadInputIsOneLine) {
+  const fs::path dir = testing::CreateTestDir();
+  auto create_error = [&](const DatasetInfo& info) {
+    return testing::ErrorMessage<ShapeError>(
+        [&] { DatasetWriter writer(dir / "bad.h5", info); });
+  };
+  DatasetInfo info = SlottedInfo();
+  info.labels.pop_back();
+  EXPECT_THAT(create_error(info), HasSubstr("3 labels for 4 slots"));
+  info = SlottedInfo();
+  info.slot_table.rows.pop_back();
+  EXPECT_THAT(create_error(info), HasSubstr("17 values for width 3"));
+  info = SlottedInfo();
+  info.slot_table.names.pop_back();
+  EXPECT_THAT(create_error(info), HasSubstr("6 rows, 5 names"));
+  info = SlottedInfo();
+  info.slot_table.row_layout[2] = 2;
+  EXPECT_THAT(create_error(info), HasSubstr("row 2 has layout 2"));
+  info = SlottedInfo();
+  info.slot_table.names[1] = "a\nb";
+  EXPECT_THAT(create_error(info), HasSubstr("row 1 has a name with a newline"));
+
+  DatasetWriter writer(dir / "ok.h5", SlottedInfo());
+  LabeledFrames bad = SlottedFrames(0, 3);
+  bad.frame_slots(2)[1] = 6;  // the table has rows 0..5
+  const std::string message =
+      testing::ErrorMessage<ShapeError>([&] { writer.Append(bad); });
+  EXPECT_THAT(message,
+              HasSubstr("slot row 6 at frame 2 slot 1 is outside "
+                        "[-1, 6)"));
+  EXPECT_EQ(message.find('\n'), std::string::npos);
+  EXPECT_THAT(testing::ErrorMessage<ShapeError>(
+                  [&] { writer.Append(MakeFrames(0, 2, kSlots)); }),
+              HasSubstr("0 label slots per frame, the dataset 4"));
 }
 
 TEST(DatasetWriter, RoundTripWithAttributes) {

@@ -173,6 +173,48 @@ TEST(Hdf5BatchSource, ShuffledPerEpochLikeInMemory) {
   ordered.Read(3, 18, 2, &c);
   EXPECT_EQ(FrameIds(c), (std::vector<int64_t>{18, 19}));
   EXPECT_THROW(ordered.Read(0, 19, 2, &c), ShapeError);
+  EXPECT_EQ(ordered.slot_table(), nullptr);
+}
+
+TEST(Hdf5BatchSource, SlottedFramesBringTheirSlotTable) {
+  // A dataset `soma synth` wrote with a layout sampler: the source hands
+  // the trainer its slot table, and shuffled batches keep each frame's slot
+  // rows with its points.
+  const auto path = testing::CreateTestDir() / "slotted.h5";
+  DatasetInfo info;
+  info.labels = {"slot0", "slot1", "slot2"};
+  info.num_points = 2;
+  info.num_slots = 3;
+  info.slot_table.width = 2;
+  info.slot_table.rows = {0, 1, 2, 3, 4, 5, 6, 7};
+  info.slot_table.names = {"A", "B", "C", "D"};
+  info.slot_table.row_layout = {0, 0, 1, 1};
+  info.slot_table.layouts = {"pig39", "random"};
+  LabeledFrames frames = CountingFrames(30, 2);
+  frames.num_slots = 3;
+  for (int64_t f = 0; f < 30; ++f) {  // frame f: rows f % 4, -1, (f + 1) % 4
+    for (const int64_t row : {f % 4, int64_t{-1}, (f + 1) % 4}) {
+      frames.slots.push_back(static_cast<int16_t>(row));
+    }
+  }
+  {
+    DatasetWriter writer(path, info);
+    writer.Append(frames);
+    writer.Close();
+  }
+  const Hdf5BatchSource source(path, true, 5);
+  ASSERT_NE(source.slot_table(), nullptr);
+  EXPECT_EQ(source.slot_table()->names, info.slot_table.names);
+  EXPECT_EQ(source.slot_table()->layouts, info.slot_table.layouts);
+  LabeledFrames batch;
+  source.Read(1, 4, 12, &batch);
+  ASSERT_EQ(batch.num_slots, 3);
+  for (int64_t i = 0; i < batch.num_frames(); ++i) {
+    const int64_t f = static_cast<int64_t>(batch.frame_points(i)[0]);
+    EXPECT_EQ(batch.frame_slots(i)[0], f % 4);
+    EXPECT_EQ(batch.frame_slots(i)[1], -1);
+    EXPECT_EQ(batch.frame_slots(i)[2], (f + 1) % 4);
+  }
 }
 
 }  // namespace
