@@ -4,7 +4,8 @@
 // slots and loads, and `soma label` labels the bundled clip with it. Second
 // slice: training with a layout per placement block
 // (synth/layout_sampler=builtin), resumed, recorded in the checkpoint; and
-// `soma label` / `soma label_eval` with a layout given at label time.
+// `soma label` / `soma label_eval` with a layout given at label time. Third
+// slice: the random pool, through an HDF5 dataset of slotted frames.
 #include "framework/body/marker_layout.h"
 #include "framework/body/procedural_body.h"
 #include "framework/config/app.h"
@@ -40,30 +41,39 @@ int CountOccurrences(const std::string& text, const std::string& needle) {
   return count;
 }
 
+/// `soma train` overrides of a tiny layout-conditioned model, shared by the
+/// tests below: the run dir, epochs and data sizes vary.
+std::vector<std::string> TinyTrainArgs(const fs::path& run,
+                                       int epochs,
+                                       int train_frames,
+                                       int val_frames) {
+  return {"task=train",
+          "model=soma_any_layout",
+          "scale=cpu",
+          "hydra.run.dir=" + run.string(),
+          "model.d_model=16",
+          "model.hidden=16",
+          "model.backbone.num_layers=1",
+          "model.backbone.num_heads=2",
+          "model.label_encoder.num_heads=2",
+          "model.label_encoder.num_layers=1",
+          "normalization.num_iters=5",
+          "train.batch_size=16",
+          "train.train_frames=" + std::to_string(train_frames),
+          "train.val_frames=" + std::to_string(val_frames),
+          "train.max_epochs=" + std::to_string(epochs),
+          "train.progress=false",
+          "threads=1"};
+}
+
 TEST(AnyLayout, TrainsSavesLoadsAndLabelsTheBundledClip) {
   const fs::path dir = testing::CreateTestDir();
   const fs::path run = dir / "train";
   const std::string configs = (testing::SourceDir() / "configs").string();
   auto train_args = [&](int epochs) {
-    return std::vector<std::string>{
-        "task=train",
-        "model=soma_any_layout",
-        "scale=cpu",
-        "train.engine=fast",
-        "hydra.run.dir=" + run.string(),
-        "model.d_model=16",
-        "model.hidden=16",
-        "model.backbone.num_layers=1",
-        "model.backbone.num_heads=2",
-        "model.label_encoder.num_heads=2",
-        "model.label_encoder.num_layers=1",
-        "normalization.num_iters=5",
-        "train.batch_size=16",
-        "train.train_frames=32",
-        "train.val_frames=16",
-        "train.max_epochs=" + std::to_string(epochs),
-        "train.progress=false",
-        "threads=1"};
+    std::vector<std::string> args = TinyTrainArgs(run, epochs, 32, 16);
+    args.push_back("train.engine=fast");
+    return args;
   };
   ASSERT_EQ(RunHydraApp(train_args(1), configs, "config", RunConfiguredTask),
             0);
@@ -113,24 +123,9 @@ TEST(AnyLayout, TrainsSavesLoadsAndLabelsTheBundledClip) {
 }
 
 std::vector<std::string> SampledTrainArgs(const fs::path& run, int epochs) {
-  return {"task=train",
-          "model=soma_any_layout",
-          "synth/layout_sampler=builtin",
-          "scale=cpu",
-          "hydra.run.dir=" + run.string(),
-          "model.d_model=16",
-          "model.hidden=16",
-          "model.backbone.num_layers=1",
-          "model.backbone.num_heads=2",
-          "model.label_encoder.num_heads=2",
-          "model.label_encoder.num_layers=1",
-          "normalization.num_iters=5",
-          "train.batch_size=16",
-          "train.train_frames=64",
-          "train.val_frames=128",
-          "train.max_epochs=" + std::to_string(epochs),
-          "train.progress=false",
-          "threads=1"};
+  std::vector<std::string> args = TinyTrainArgs(run, epochs, 64, 128);
+  args.insert(args.begin() + 2, "synth/layout_sampler=builtin");
+  return args;
 }
 
 TEST(AnyLayout, TrainsOnALayoutPerPlacementBlockAndResumes) {
@@ -275,6 +270,51 @@ TEST(AnyLayout, LabelsWithALayoutGivenAtLabelTime) {
                                    "checkpoint"));
   // ... its own layout given explicitly is fine.
   EXPECT_EQ(label("fixed_cmu", dir / "fixed", "layout=cmu41", &err), 0) << err;
+}
+
+TEST(AnyLayout, TrainsOnADatasetOfRandomPoolLayouts) {
+  // Third slice: `soma synth` with synth/layout_sampler=mixed writes slotted
+  // frames (a small random pool beside the listed layouts) and their slot
+  // table to HDF5; `soma train task.data=hdf5` trains the conditioned model
+  // on them and records the dataset as its sampler.
+  const fs::path dir = testing::CreateTestDir();
+  const std::string configs = (testing::SourceDir() / "configs").string();
+  for (const std::string split : {"train", "val"}) {
+    ASSERT_EQ(RunHydraApp({"task=synth",
+                           "synth/layout_sampler=mixed",
+                           "synth.layout_sampler.random_layouts=8",
+                           "synth.layout_sampler.max_labels=72",
+                           "scale=cpu",
+                           "task.num_frames=128",
+                           "task.split=" + split,
+                           "task.progress=false",
+                           "threads=1",
+                           "hydra.run.dir=" + (dir / split).string()},
+                          configs,
+                          "config",
+                          RunConfiguredTask),
+              0)
+        << split;
+  }
+  const fs::path run = dir / "run";
+  std::vector<std::string> args = TinyTrainArgs(run, 1, 64, 64);
+  args.push_back("task.data=hdf5");
+  args.push_back("task.train_file=" + (dir / "train" / "synth.h5").string());
+  args.push_back("task.val_file=" + (dir / "val" / "synth.h5").string());
+  ASSERT_EQ(RunHydraApp(args, configs, "config", RunConfiguredTask), 0);
+  const std::string log = ReadFile(run / "soma.log");
+  EXPECT_THAT(log,
+              ::testing::HasSubstr("72 label slots, a layout per placement "
+                                   "block sampled from [cmu41, pig39, "
+                                   "soma53, random]"));
+  EXPECT_THAT(log, ::testing::HasSubstr("random 0."));  // per-layout val
+  const CheckpointInfo info =
+      ReadCheckpointInfo(run / "checkpoints" / "best.pt");
+  const ConfigNode* sampler = info.model_config.Find("layout_sampler");
+  ASSERT_NE(sampler, nullptr);
+  EXPECT_EQ(sampler->at("dataset").AsString(),
+            (dir / "train" / "synth.h5").string());
+  EXPECT_EQ(info.labels.size(), 72u);
 }
 
 }  // namespace
