@@ -481,6 +481,55 @@ void RegisterTrainerConfigGroup() {
 // ---------------------------------------------------------------------------
 // Metrics and summary
 
+std::string LayoutMetricsCsv(const std::vector<EpochMetrics>& history) {
+  std::string csv = "epoch,layout,frames,pairs,correct,accuracy\n";
+  for (const EpochMetrics& m : history) {
+    for (const EpochMetrics::Layout& l : m.layouts) {
+      std::string name = l.name;  // a layout file's path may hold commas
+      std::replace(name.begin(), name.end(), ',', ';');
+      csv += fmt::format("{},{},{},{},{},{}\n",
+                         m.epoch,
+                         name,
+                         l.frames,
+                         l.pairs,
+                         l.correct,
+                         CsvDouble(l.accuracy()));
+    }
+  }
+  return csv;
+}
+
+void ParseLayoutMetricsCsv(const std::string& csv,
+                           const std::string& source,
+                           std::vector<EpochMetrics>* history) {
+  const std::vector<std::string> lines = SplitLines(csv);
+  for (size_t i = 1; i < lines.size(); ++i) {  // skip the header
+    if (lines[i].empty()) continue;
+    std::vector<std::string> cells;
+    std::stringstream stream(lines[i]);
+    std::string cell;
+    while (std::getline(stream, cell, ',')) cells.push_back(cell);
+    if (cells.size() != 6) {
+      throw IoError(
+          fmt::format("{}: layout metrics row '{}' has {} columns, "
+                      "expected 6",
+                      source,
+                      lines[i],
+                      cells.size()));
+    }
+    const int epoch = std::atoi(cells[0].c_str());
+    for (EpochMetrics& m : *history) {
+      if (m.epoch != epoch) continue;
+      EpochMetrics::Layout layout;
+      layout.name = cells[1];
+      layout.frames = std::strtoll(cells[2].c_str(), nullptr, 10);
+      layout.pairs = std::strtoll(cells[3].c_str(), nullptr, 10);
+      layout.correct = std::strtoll(cells[4].c_str(), nullptr, 10);
+      m.layouts.push_back(std::move(layout));
+    }
+  }
+}
+
 std::string MetricsCsvHeader() {
   return "epoch,step,train_loss,val_loss,val_acc,val_f1,val_acc_frame,"
          "val_f1_frame,lr,wall_s,frames_per_s";
@@ -715,6 +764,9 @@ std::filesystem::path Trainer::best_checkpoint() const {
 std::filesystem::path Trainer::metrics_path() const {
   return run_dir_ / "metrics.csv";
 }
+std::filesystem::path Trainer::layout_metrics_path() const {
+  return run_dir_ / "layout_metrics.csv";
+}
 
 void Trainer::Resume(const std::filesystem::path& path, State* state) {
   torch::serialize::InputArchive archive = OpenCheckpoint(path);
@@ -744,6 +796,12 @@ void Trainer::Resume(const std::filesystem::path& path, State* state) {
   state->finished = info.finished;
   state->finish_reason = ReadString(archive, "meta_finish_reason", path);
   state->history = ParseMetricsCsv(info.metrics_csv);
+  if (c10::IValue layouts;
+      archive.try_read("meta_layout_metrics_csv", layouts) &&
+      layouts.isString()) {
+    ParseLayoutMetricsCsv(
+        layouts.toStringRef(), path.string(), &state->history);
+  }
   // Mid-epoch keys (absent in checkpoints written at an epoch's end).
   c10::IValue value;
   state->batch = archive.try_read("meta_batch", value) && value.isInt()
@@ -780,6 +838,10 @@ void Trainer::SaveCheckpoints(const State& state, bool is_best) {
   archive.write("meta_labels", c10::IValue(JoinLines(identity_.labels)));
   archive.write("meta_config", c10::IValue(identity_.config_yaml));
   archive.write("meta_metrics_csv", c10::IValue(MetricsCsv(state.history)));
+  if (!state.history.empty() && !state.history.back().layouts.empty()) {
+    archive.write("meta_layout_metrics_csv",
+                  c10::IValue(LayoutMetricsCsv(state.history)));
+  }
   archive.write("meta_scheduler", c10::IValue(scheduler_->SaveState()));
   archive.write("meta_early_stopping",
                 c10::IValue(early_stopping_.SaveState()));
@@ -862,6 +924,10 @@ EpochMetrics Trainer::Validate(const BatchSource& val, EpochMetrics row) {
     std::vector<std::string> parts;
     for (size_t k = 0; k < layout_counts.size(); ++k) {
       const LayoutCount& c = layout_counts[k];
+      row.layouts.push_back({.name = val.slot_table()->layouts[k],
+                             .frames = c.frames,
+                             .pairs = c.pairs,
+                             .correct = c.correct});
       parts.push_back(fmt::format(
           "{} {}",
           val.slot_table()->layouts[k],
@@ -1113,6 +1179,9 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
     }
     SaveCheckpoints(state, is_best);
     WriteFileAtomic(metrics_path(), MetricsCsv(state.history));
+    if (!row.layouts.empty()) {
+      WriteFileAtomic(layout_metrics_path(), LayoutMetricsCsv(state.history));
+    }
     SOMA_LOG(INFO,
              "epoch {}/{}: train_loss {:.5g} val_loss {:.5g} val_acc {:.4f} "
              "val_f1 {:.4f} lr {:.3g} ({:.1f}s, {:.0f} frames/s){}",

@@ -116,7 +116,30 @@ struct EpochMetrics {
   double lr = 0;
   double wall_s = 0;
   double frames_per_s = 0;
+  /// Validation per sampled layout (a layout-sampled stream; empty
+  /// otherwise), in SlotTable::layouts order: layout_metrics.csv.
+  struct Layout {
+    std::string name;    // "cmu41", "random" (the pool), ...
+    int64_t frames = 0;  // validation frames of that layout
+    int64_t pairs = 0;   // scored (point, label) pairs, as val_acc
+    int64_t correct = 0;
+    double accuracy() const {
+      return pairs > 0 ? static_cast<double>(correct) / pairs : 0.0;
+    }
+  };
+  std::vector<Layout> layouts;
 };
+
+/// layout_metrics.csv of a history: `epoch,layout,frames,pairs,correct,
+/// accuracy`, one line per epoch and sampled layout (only the header when
+/// no epoch has layouts).
+std::string LayoutMetricsCsv(const std::vector<EpochMetrics>& history);
+/// Fills the `layouts` of `history`'s epochs from LayoutMetricsCsv text
+/// (rows of epochs not in `history` are ignored). IoError naming `source`
+/// for a malformed row.
+void ParseLayoutMetricsCsv(const std::string& csv,
+                           const std::string& source,
+                           std::vector<EpochMetrics>* history);
 
 /// The metrics.csv header line (without newline).
 std::string MetricsCsvHeader();
@@ -221,6 +244,8 @@ class Trainer {
   std::filesystem::path last_checkpoint() const;
   std::filesystem::path best_checkpoint() const;
   std::filesystem::path metrics_path() const;
+  /// layout_metrics.csv (written when validation has sampled layouts).
+  std::filesystem::path layout_metrics_path() const;
 
  private:
   struct State;

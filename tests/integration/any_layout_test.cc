@@ -168,6 +168,13 @@ TEST(AnyLayout, TrainsOnALayoutPerPlacementBlockAndResumes) {
   EXPECT_EQ(std::count(metrics.begin(), metrics.end(), '\n'), 3) << metrics;
   EXPECT_THAT(ReadFile(run / "soma.log"),
               ::testing::HasSubstr("train: resumed from"));
+  // layout_metrics.csv: a row per epoch and layout, epoch 1's rows carried
+  // through the resume by the checkpoint.
+  const std::string layouts = ReadFile(run / "layout_metrics.csv");
+  EXPECT_EQ(std::count(layouts.begin(), layouts.end(), '\n'), 1 + 2 * 3)
+      << layouts;
+  EXPECT_THAT(layouts, ::testing::HasSubstr("\n1,pig39,"));
+  EXPECT_THAT(layouts, ::testing::HasSubstr("\n2,soma53,"));
 
   // A fixed-head model cannot train on sampled layouts: one line, non-zero.
   std::vector<std::string> fixed = SampledTrainArgs(dir / "fixed", 1);

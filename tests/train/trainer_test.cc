@@ -663,5 +663,38 @@ TEST(TrainerOptions, DecodeAndValidate) {
                ConfigError);
 }
 
+TEST(LayoutMetricsCsv, RoundTripsPerEpochLayoutCounts) {
+  std::vector<EpochMetrics> history(2);
+  history[0].epoch = 1;
+  history[1].epoch = 2;
+  history[0].layouts = {
+      {.name = "cmu41", .frames = 32, .pairs = 1000, .correct = 250},
+      {.name = "a,b.json", .frames = 32, .pairs = 900, .correct = 0}};
+  history[1].layouts = {
+      {.name = "cmu41", .frames = 32, .pairs = 1000, .correct = 500},
+      {.name = "random", .frames = 30, .pairs = 800, .correct = 400}};
+  const std::string csv = LayoutMetricsCsv(history);
+  EXPECT_EQ(csv,
+            "epoch,layout,frames,pairs,correct,accuracy\n"
+            "1,cmu41,32,1000,250,0.25\n"
+            "1,a;b.json,32,900,0,0\n"
+            "2,cmu41,32,1000,500,0.5\n"
+            "2,random,30,800,400,0.5\n");
+  std::vector<EpochMetrics> parsed(2);
+  parsed[0].epoch = 1;
+  parsed[1].epoch = 2;
+  ParseLayoutMetricsCsv(csv, "ckpt", &parsed);
+  ASSERT_EQ(parsed[1].layouts.size(), 2u);
+  EXPECT_EQ(parsed[1].layouts[1].name, "random");
+  EXPECT_EQ(parsed[1].layouts[1].frames, 30);
+  EXPECT_EQ(parsed[1].layouts[1].correct, 400);
+  EXPECT_DOUBLE_EQ(parsed[0].layouts[0].accuracy(), 0.25);
+  EXPECT_EQ(LayoutMetricsCsv(parsed), csv);
+  EXPECT_EQ(LayoutMetricsCsv({}),
+            "epoch,layout,frames,pairs,correct,accuracy\n");
+  EXPECT_THROW(ParseLayoutMetricsCsv("h\n1,cmu41,3\n", "ckpt", &parsed),
+               IoError);
+}
+
 }  // namespace
 }  // namespace soma
