@@ -91,6 +91,7 @@ AblationTest ParseTest(const std::string& name, const ConfigNode& node) {
   reader.Read("tracklet", &t.tracklet);
   reader.Read("corrupt_overrides", &t.corrupt_overrides);
   reader.Read("eval_overrides", &t.eval_overrides);
+  reader.Read("label_overrides", &t.label_overrides);
   reader.Finish();
   return t;
 }

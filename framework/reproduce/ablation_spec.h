@@ -62,6 +62,9 @@ struct AblationTest {
   /// Extra overrides of each `soma eval` command, e.g.
   /// `task.unknown_gt_labels=ghost`.
   std::vector<std::string> eval_overrides;
+  /// Extra overrides of each `soma label` command, e.g. `layout=cmu41` (the
+  /// layout a layout-conditioned model labels the take with).
+  std::vector<std::string> label_overrides;
 };
 
 /// "`better` beats `worse` on `test`/`metric`" (kind greater), or "`better`

@@ -354,7 +354,12 @@ void WriteResultsMarkdown(const AblationSpec& spec,
   md << "| training budget (every model) | `"
      << MarkdownCell(fmt::format("{}", fmt::join(context.budget, " ")))
      << "` |\n";
-  md << "| seeds | " << spec.seeds << " training seeds per variant |\n";
+  md << "| seeds | " << (context.seeds > 0 ? context.seeds : spec.seeds)
+     << " training seeds per variant";
+  if (context.seeds > 0 && context.seeds != spec.seeds) {
+    md << fmt::format(" (task.seeds; the spec plans {})", spec.seeds);
+  }
+  md << " |\n";
   md << "| test data | ";
   for (size_t i = 0; i < spec.tests.size(); ++i) {
     const AblationTest& t = spec.tests[i];

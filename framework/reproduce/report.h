@@ -113,6 +113,7 @@ struct ReportContext {
   double compute_s = 0;             // summed wall time of all commands
   int models_done = 0;
   int models_planned = 0;
+  int seeds = 0;  // training seeds per variant planned (0: the spec's)
 };
 
 void WriteResultsCsv(const AblationSpec& spec,

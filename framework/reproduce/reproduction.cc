@@ -420,6 +420,9 @@ ReproductionPlan PlanReproduction(const AblationSpec& spec,
         test_overrides.insert(test_overrides.end(),
                               test.eval_overrides.begin(),
                               test.eval_overrides.end());
+        test_overrides.insert(test_overrides.end(),
+                              test.label_overrides.begin(),
+                              test.label_overrides.end());
         const fs::path test_dir = model.dir / "tests" /
                                   fmt::format("{}_{}_{}_seed{}{}",
                                               stem,
@@ -438,8 +441,11 @@ ReproductionPlan PlanReproduction(const AblationSpec& spec,
                       "task.checkpoint=" + checkpoint.string(),
                       fmt::format("task.tracklet={}", test.tracklet),
                       fmt::format("task.inference.seed={}", options.test_seed),
-                      "threads=1",
-                      RunDirArg(label.run_dir)};
+                      "threads=1"};
+        label.argv.insert(label.argv.end(),
+                          test.label_overrides.begin(),
+                          test.label_overrides.end());
+        label.argv.push_back(RunDirArg(label.run_dir));
         PlannedCommand eval;
         eval.name =
             fmt::format("eval {} seed {} on {}", variant.name, seed, test.name);

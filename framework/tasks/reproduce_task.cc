@@ -182,6 +182,7 @@ class ReproduceTask : public Task {
     context.budget = reproduction.budget;
     context.data_dir = reproduction.data_dir.string();
     context.models_planned = static_cast<int>(plan.models.size());
+    context.seeds = plan.seeds;
     return context;
   }
 

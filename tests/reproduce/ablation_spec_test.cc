@@ -28,7 +28,8 @@ tests:
   hdm05: {label: "HDM05", take: c3d/a.c3d, setting: OC_05_G_03_BT_00}
   occ5: {take: c3d/a.c3d, setting: OCE_05_G_00_BT_00, tracklet: true,
          corrupt_overrides: ["layout.exclude=[RBAC,LSHN]"],
-         eval_overrides: [task.unknown_gt_labels=ghost]}
+         eval_overrides: [task.unknown_gt_labels=ghost],
+         label_overrides: [layout=pig39]}
 variants:
   - name: base
     label: "Base"
@@ -76,6 +77,8 @@ TEST(AblationSpecTest, ParsesEveryField) {
               ElementsAre("layout.exclude=[RBAC,LSHN]"));
   EXPECT_THAT(spec.Test("occ5").eval_overrides,
               ElementsAre("task.unknown_gt_labels=ghost"));
+  EXPECT_THAT(spec.Test("occ5").label_overrides, ElementsAre("layout=pig39"));
+  EXPECT_TRUE(spec.Test("hdm05").label_overrides.empty());
   ASSERT_EQ(spec.variants.size(), 4u);
   EXPECT_THAT(spec.Variant("log_softmax").overrides,
               ElementsAre("normalization=log_softmax"));
@@ -256,6 +259,8 @@ TEST(AblationSpecTest, EveryShippedOverrideComposesWithItsTask) {
       EXPECT_EQ(error("corrupt", test.corrupt_overrides), "")
           << name << ", test " << test.name;
       EXPECT_EQ(error("eval", test.eval_overrides), "")
+          << name << ", test " << test.name;
+      EXPECT_EQ(error("label", test.label_overrides), "")
           << name << ", test " << test.name;
     }
   }

@@ -277,6 +277,19 @@ TEST(ReportTest, AReportFromADirtyTreeSaysSoOnTop) {
   EXPECT_THAT(ReadFile(dir / "clean.md"), Not(HasSubstr(kDirtyTreeMark)));
 }
 
+TEST(ReportTest, TheSeedsRowSaysHowManySeedsThisRunPlanned) {
+  const auto dir = testing::CreateTestDir();
+  ReportContext context;
+  WriteResultsMarkdown(Spec(), Cells(), context, dir / "spec.md");
+  EXPECT_THAT(ReadFile(dir / "spec.md"),
+              HasSubstr("| seeds | 3 training seeds per variant |"));
+  context.seeds = 1;  // task.seeds=1
+  WriteResultsMarkdown(Spec(), Cells(), context, dir / "one.md");
+  EXPECT_THAT(ReadFile(dir / "one.md"),
+              HasSubstr("| seeds | 1 training seeds per variant (task.seeds; "
+                        "the spec plans 3) |"));
+}
+
 TEST(ReportTest, CsvHasOneRowPerVariantTestAndMetricWithStatus) {
   const auto dir = testing::CreateTestDir();
   WriteResultsCsv(Spec(), Cells(), dir / "demo.csv");

@@ -210,7 +210,8 @@ tests:
   full: {take: c3d/take.c3d, setting: OC_05_G_03_BT_00,
          eval_overrides: [task.unknown_gt_labels=ghost]}
   fewer: {take: c3d/take.c3d, setting: OC_05_G_03_BT_00,
-          corrupt_overrides: ["layout.exclude=[RBAC]"]}
+          corrupt_overrides: ["layout.exclude=[RBAC]"],
+          label_overrides: [layout=pig39]}
 variants:
   - {name: base}
   - {name: subset, overrides: ["layout.exclude=[RBAC]"], tests: [full]}
@@ -241,6 +242,12 @@ claims: []
       ::testing::Not(::testing::Contains("task.unknown_gt_labels=ghost")));
   EXPECT_THAT(commands[3].argv,
               ::testing::Contains(HasSubstr(plan.corrupt[1].run_dir.string())));
+  // A label override reaches that test's `soma label` only, before its run
+  // dir (the last argument).
+  EXPECT_THAT(commands[3].argv, ::testing::Contains("layout=pig39"));
+  EXPECT_EQ(commands[3].argv.back().rfind("hydra.run.dir=", 0), 0u);
+  EXPECT_THAT(commands[1].argv,
+              ::testing::Not(::testing::Contains("layout=pig39")));
   EXPECT_NE(plan.models[0].eval_dirs.at("full"),
             plan.models[0].eval_dirs.at("fewer"));
   // Tests without extra overrides keep their directory names (finished
