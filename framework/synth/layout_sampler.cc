@@ -152,15 +152,15 @@ MarkerLayout MakeRandomLayout(const BodyModel& body,
     const double c = 1 - a - b;
     const int corner = a >= b && a >= c ? 0 : (b >= c ? 1 : 2);
     const int vertex = f(corner, faces[j]);
-    bool free = true;
+    bool far_enough = true;
     for (const int other : chosen) {
       if (other == vertex ||
           (v.col(other) - v.col(vertex)).norm() < min_spacing) {
-        free = false;
+        far_enough = false;
         break;
       }
     }
-    if (free) chosen.push_back(vertex);
+    if (far_enough) chosen.push_back(vertex);
   }
   if (static_cast<int>(chosen.size()) < num_markers) {
     throw ConfigError(fmt::format(
