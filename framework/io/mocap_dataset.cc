@@ -264,6 +264,35 @@ struct DatasetWriter::Impl {
     return compressed.size() - zlib.avail_out;
   }
 
+  /// Writes one chunk of `dataset` (frames x `width` elements of
+  /// `element_size` bytes per frame, rank 2 or 3) at frame `begin`: `bytes`
+  /// bytes of `data`, zero-padded to a full chunk, and extends the dataset
+  /// to `total` frames.
+  void WriteDatasetChunk(hid_t dataset,
+                         const std::vector<hsize_t>& frame_dims,
+                         size_t element_size,
+                         hsize_t begin,
+                         hsize_t total,
+                         const void* data,
+                         size_t bytes,
+                         const std::string& what) {
+    size_t frame_elements = 1;
+    for (const hsize_t d : frame_dims) frame_elements *= d;
+    std::vector<hsize_t> dims = {total};
+    dims.insert(dims.end(), frame_dims.begin(), frame_dims.end());
+    CheckStatus(H5Dset_extent(dataset, dims.data()), what);
+    staging.assign(
+        static_cast<size_t>(chunk_frames) * frame_elements * element_size, 0);
+    std::memcpy(staging.data(), data, bytes);
+    const size_t size = Filter(staging.size(), element_size);
+    std::vector<hsize_t> offset(dims.size(), 0);
+    offset[0] = begin;
+    CheckStatus(
+        H5Dwrite_chunk(
+            dataset, H5P_DEFAULT, 0, offset.data(), size, compressed.data()),
+        what);
+  }
+
   /// Writes one chunk: `count` <= chunk_frames frames at frame `written`
   /// (a multiple of chunk_frames), zero-padded to a full chunk.
   void WriteChunk(const float* p,
@@ -274,47 +303,15 @@ struct DatasetWriter::Impl {
     const hsize_t begin = static_cast<hsize_t>(written);
     const hsize_t total = begin + static_cast<hsize_t>(count);
     const std::string what = fmt::format("{}: write failed", name);
-    const size_t point_bytes = static_cast<size_t>(count) * n * 3 * 4;
-    const size_t label_bytes = static_cast<size_t>(count) * n * 2;
-    const size_t chunk_points = static_cast<size_t>(chunk_frames) * n * 3 * 4;
-    const size_t chunk_labels = static_cast<size_t>(chunk_frames) * n * 2;
-    {
-      const hsize_t dims[3] = {total, n, 3};
-      CheckStatus(H5Dset_extent(points.get(), dims), what);
-      staging.assign(chunk_points, 0);
-      std::memcpy(staging.data(), p, point_bytes);
-      const size_t size = Filter(chunk_points, 4);
-      const hsize_t offset[3] = {begin, 0, 0};
-      CheckStatus(
-          H5Dwrite_chunk(
-              points.get(), H5P_DEFAULT, 0, offset, size, compressed.data()),
-          what);
-    }
-    {
-      const hsize_t dims[2] = {total, n};
-      CheckStatus(H5Dset_extent(labels.get(), dims), what);
-      staging.assign(chunk_labels, 0);
-      std::memcpy(staging.data(), l, label_bytes);
-      const size_t size = Filter(chunk_labels, 2);
-      const hsize_t offset[2] = {begin, 0};
-      CheckStatus(
-          H5Dwrite_chunk(
-              labels.get(), H5P_DEFAULT, 0, offset, size, compressed.data()),
-          what);
-    }
+    const size_t frames = static_cast<size_t>(count);
+    WriteDatasetChunk(
+        points.get(), {n, 3}, 4, begin, total, p, frames * n * 3 * 4, what);
+    WriteDatasetChunk(
+        labels.get(), {n}, 2, begin, total, l, frames * n * 2, what);
     if (info.num_slots > 0) {
       const hsize_t s = static_cast<hsize_t>(info.num_slots);
-      const hsize_t dims[2] = {total, s};
-      CheckStatus(H5Dset_extent(slots.get(), dims), what);
-      const size_t chunk_slots = static_cast<size_t>(chunk_frames) * s * 2;
-      staging.assign(chunk_slots, 0);
-      std::memcpy(staging.data(), sl, static_cast<size_t>(count) * s * 2);
-      const size_t size = Filter(chunk_slots, 2);
-      const hsize_t offset[2] = {begin, 0};
-      CheckStatus(
-          H5Dwrite_chunk(
-              slots.get(), H5P_DEFAULT, 0, offset, size, compressed.data()),
-          what);
+      WriteDatasetChunk(
+          slots.get(), {s}, 2, begin, total, sl, frames * s * 2, what);
     }
     written = static_cast<int64_t>(total);
   }

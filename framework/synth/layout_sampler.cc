@@ -202,12 +202,7 @@ LayoutSampler::LayoutSampler(const BodyModel& body,
           layout.num_markers(),
           options_.max_labels));
     }
-    row_offsets_.push_back(row_offsets_.empty()
-                               ? 0
-                               : row_offsets_.back() +
-                                     layouts_.back().num_markers());
-    descriptors_.push_back(LayoutDescriptors(vertices, layout));
-    layouts_.push_back(std::move(layout));
+    AddLayout(vertices, std::move(layout));
   }
   const Rng pool(Rng(options_.random_seed).Stream("random_layouts"));
   for (int i = 0; i < options_.random_layouts; ++i) {
@@ -219,13 +214,18 @@ LayoutSampler::LayoutSampler(const BodyModel& body,
                                            options_.random_min_spacing,
                                            fmt::format("random{:03d}", i),
                                            &rng);
-    row_offsets_.push_back(row_offsets_.empty()
-                               ? 0
-                               : row_offsets_.back() +
-                                     layouts_.back().num_markers());
-    descriptors_.push_back(LayoutDescriptors(vertices, layout));
-    layouts_.push_back(std::move(layout));
+    AddLayout(vertices, std::move(layout));
   }
+}
+
+void LayoutSampler::AddLayout(const VertexDescriptors& vertices,
+                              MarkerLayout layout) {
+  row_offsets_.push_back(row_offsets_.empty()
+                             ? 0
+                             : row_offsets_.back() +
+                                   layouts_.back().num_markers());
+  descriptors_.push_back(LayoutDescriptors(vertices, layout));
+  layouts_.push_back(std::move(layout));
 }
 
 LayoutDraw LayoutSampler::Draw(uint64_t seed, int64_t block) const {

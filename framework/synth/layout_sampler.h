@@ -131,6 +131,9 @@ class LayoutSampler {
   const LayoutSamplerOptions& options() const { return options_; }
 
  private:
+  /// Appends `layout`, its descriptors and its first slot-table row.
+  void AddLayout(const VertexDescriptors& vertices, MarkerLayout layout);
+
   LayoutSamplerOptions options_;
   std::vector<MarkerLayout> layouts_;
   std::vector<Eigen::MatrixXf> descriptors_;  // per layout, K x Q
