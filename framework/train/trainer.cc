@@ -256,29 +256,22 @@ AugmentedTargets BatchTargets(const Tensors& t, int64_t num_labels) {
   return targets;
 }
 
-/// Validation pairs per sampled layout (SlotTable::layouts).
-struct LayoutCount {
-  int64_t correct = 0;
-  int64_t pairs = 0;
-  int64_t frames = 0;
-};
-
 /// Adds each frame's scored pairs (those with valid[i], as in
-/// train/metrics.h) to its layout's count; a frame's layout is that of its
-/// first slot's row.
+/// train/metrics.h) to its layout's entry (one per SlotTable::layouts); a
+/// frame's layout is that of its first slot's row.
 void AddLayoutCounts(const LabeledFrames& frames,
                      const SlotTable& table,
                      const int64_t* gt,
                      const int64_t* pred,
                      const bool* valid,
-                     std::vector<LayoutCount>* counts) {
+                     std::vector<EpochMetrics::Layout>* counts) {
   const int64_t n = frames.num_points;
   for (int64_t f = 0; f < frames.num_frames(); ++f) {
     const int16_t* slots = frames.frame_slots(f);
     const int16_t* first = std::find_if(
         slots, slots + frames.num_slots, [](int16_t r) { return r >= 0; });
     if (first == slots + frames.num_slots) continue;
-    LayoutCount& c = (*counts)[static_cast<size_t>(
+    EpochMetrics::Layout& c = (*counts)[static_cast<size_t>(
         table.row_layout[static_cast<size_t>(*first)])];
     for (int64_t i = f * n; i < (f + 1) * n; ++i) {
       if (!valid[i]) continue;
@@ -870,8 +863,11 @@ EpochMetrics Trainer::Validate(const BatchSource& val, EpochMetrics row) {
   const int64_t num_batches = total / batch;  // drop_last, as released
   const int64_t num_labels = model_->num_labels();
   LabelingMetrics metrics(static_cast<int>(num_labels));
-  std::vector<LayoutCount> layout_counts(
-      val.slot_table() != nullptr ? val.slot_table()->layouts.size() : 0);
+  if (val.slot_table() != nullptr) {
+    for (const std::string& name : val.slot_table()->layouts) {
+      row.layouts.push_back({.name = name});
+    }
+  }
   double loss_sum = 0;
   int64_t loss_count = 0;
   model_->eval();
@@ -915,27 +911,20 @@ EpochMetrics Trainer::Validate(const BatchSource& val, EpochMetrics row) {
                         t.labels.data_ptr<int64_t>(),
                         predicted.data_ptr<int64_t>(),
                         valid.data_ptr<bool>(),
-                        &layout_counts);
+                        &row.layouts);
       }
     }
   }
   model_->train();
-  if (!layout_counts.empty()) {
+  if (!row.layouts.empty()) {
     std::vector<std::string> parts;
-    for (size_t k = 0; k < layout_counts.size(); ++k) {
-      const LayoutCount& c = layout_counts[k];
-      row.layouts.push_back({.name = val.slot_table()->layouts[k],
-                             .frames = c.frames,
-                             .pairs = c.pairs,
-                             .correct = c.correct});
+    for (const EpochMetrics::Layout& c : row.layouts) {
       parts.push_back(fmt::format(
           "{} {}",
-          val.slot_table()->layouts[k],
-          c.pairs > 0 ? fmt::format("{:.4f} ({} frames)",
-                                    static_cast<double>(c.correct) /
-                                        static_cast<double>(c.pairs),
-                                    c.frames)
-                      : std::string("- (no frames)")));
+          c.name,
+          c.pairs > 0
+              ? fmt::format("{:.4f} ({} frames)", c.accuracy(), c.frames)
+              : std::string("- (no frames)")));
     }
     SOMA_LOG(INFO,
              "train: epoch {} validation accuracy per layout: {}",
