@@ -133,7 +133,8 @@ TEST(ModelZoo, PlacementMismatchTellsLayoutsWithTheSameLabelsApart) {
   EXPECT_NEAR(PlacementMismatch(capture, a, &pairs), 0.0, 1e-9);
   EXPECT_EQ(pairs, (n - 1) * (n - 2) / 2);  // the wandering marker is out
   EXPECT_GT(PlacementMismatch(capture, b), 0.01);
-  const ModelChoice choice = ChooseBundledModel({b, a}, capture, "auto");
+  const std::vector<BundledModel> models{b, a};  // choice.model points in
+  const ModelChoice choice = ChooseBundledModel(models, capture, "auto");
   EXPECT_EQ(choice.model->name, "a");
   EXPECT_THAT(choice.reason, HasSubstr("marker placement fits best"));
   // Without positions the tie goes to the priority.
