@@ -459,9 +459,13 @@ double SinkhornLossFrame(const float* scores,
     }
     for (int64_t j = 0; j < cols; ++j) {
       zmax = std::max(zmax, zr[j]);
-      zmin = std::min(zmin, zr[j]);
       finite = finite && std::isfinite(zr[j]);
     }
+  }
+  // The span leaves out the kernel's exact zeros (kSinkhornUnderflowNats).
+  const double underflow = zmax - kSinkhornUnderflowNats;
+  for (int64_t k = 0; k < rows * cols; ++k) {
+    if (z[k] >= underflow) zmin = std::min(zmin, z[k]);
   }
   const double norm = -std::log(static_cast<double>(n + l));
   for (int64_t i = 0; i < rows_p; ++i) log_mu[i] = norm;
@@ -494,6 +498,10 @@ double SinkhornLossFrame(const float* scores,
       const double* zr = z + i * cols;
       for (int64_t j = 0; j < cols; ++j) kr[j] = zr[j] - zmax;
       ExpInPlace(isa, kr, cols);
+      // The AVX-512 exp clamps its argument to e^-708: exact zeros.
+      for (int64_t j = 0; j < cols; ++j) {
+        if (zr[j] < underflow) kr[j] = 0.0;
+      }
     }
     std::fill(kernel_t, kernel_t + cols * rows_p, 0.0);
     for (int64_t i = 0; i < rows; ++i) {

@@ -24,6 +24,16 @@ namespace soma::internal {
 /// SinkhornFrame.
 constexpr double kSinkhornScalingMaxSpan = 200.0;
 
+/// SinkhornLossFrame: couplings more than this many nats below the largest
+/// are exact zeros of the exp-domain kernel (e^-745 is below the smallest
+/// double) and do not count in the span, so that a frame with padded label
+/// slots (score kPaddedSlotScore = -1e4, label_encoder.h) stays on the
+/// exp-domain path. The dustbin score alpha always counts, and every row and
+/// column holds it, so no row or column of the kernel is all zero; what the
+/// log-domain form would add for such an entry is below e^-545 of its row's
+/// and column's sums, under double rounding.
+constexpr double kSinkhornUnderflowNats = 745.0;
+
 /// Reusable per-thread scratch of the frame-loss kernels (grow-only: no
 /// allocation after the first frame of a given size). Not thread-safe; use
 /// one per thread.
@@ -60,8 +70,9 @@ void BuildFrameTargets(const int64_t* label_ids,
 /// contiguous). If `d_scores` != nullptr, writes `grad_scale * dloss_f/dS`
 /// (`n x l`, row stride `ld_d`) and adds `grad_scale * dloss_f/dalpha` to
 /// `*d_alpha` (if `d_alpha` != nullptr). Uses the exp-domain form when the
-/// couplings are finite and span at most kSinkhornScalingMaxSpan nats, else
-/// log-sum-exp updates. `isa` selects the kernels (kAuto: AVX-512 when the
+/// couplings are finite and span at most kSinkhornScalingMaxSpan nats (not
+/// counting those kSinkhornUnderflowNats below the largest), else log-sum-exp
+/// updates. `isa` selects the kernels (kAuto: AVX-512 when the
 /// CPU has it). Requires n >= 1, l >= 1, num_iters >= 0 (InternalError).
 double SinkhornLossFrame(const float* scores,
                          int64_t ld_scores,

@@ -9,6 +9,7 @@
 #include "framework/model/fast_loss.h"
 #include "framework/model/fast_parallel.h"
 #include "framework/model/fast_train_internal.h"
+#include "framework/model/label_encoder.h"
 #include "framework/model/labeler.h"
 #include "framework/model/layers.h"
 #include "framework/model/normalization.h"
@@ -48,6 +49,7 @@ class SinkhornLossOp : public NormalizationLossOp {
                          const Mat& scores,
                          const int64_t* label_ids,
                          int64_t num_labels,
+                         const LabelMask& mask,
                          Mat& d_scores) override {
     const int64_t n = ctx.points;
     const int64_t l = num_labels;
@@ -68,6 +70,13 @@ class SinkhornLossOp : public NormalizationLossOp {
           for (int64_t f = begin; f < end; ++f) {
             internal::BuildFrameTargets(
                 label_ids + f * n, n, l, true, g.data(), w.data());
+            if (mask.data != nullptr) {
+              const bool* present = mask.data + f * mask.frame_stride;
+              for (int64_t j = 0; j < l; ++j) {
+                if (present[j]) continue;
+                for (int64_t i = 0; i <= n; ++i) w[i * (l + 1) + j] = 0.0f;
+              }
+            }
             double da = 0.0;
             loss[static_cast<size_t>(f)] =
                 internal::SinkhornLossFrame(scores.row(f * n),
@@ -111,7 +120,10 @@ class LogSoftmaxLossOp : public NormalizationLossOp {
                          const Mat& scores,
                          const int64_t* label_ids,
                          int64_t num_labels,
+                         const LabelMask& mask,
                          Mat& d_scores) override {
+    SOMA_CHECK(mask.data == nullptr)
+        << "the log-softmax loss has no padded label slots";
     const int64_t n = ctx.points;
     const int64_t l = num_labels;
     d_scores.Resize(scores.rows, l + 1);
@@ -185,15 +197,6 @@ std::unique_ptr<FastTrainer> FastTrainer::Create(
     }
     return nullptr;
   }
-  if (model.head.is_empty()) {
-    if (why_not != nullptr) {
-      *why_not =
-          "a layout-conditioned labeller (model=soma_any_layout) scores points "
-          "against label embeddings, not a fixed score head; the fast engine "
-          "has no path for its label branch yet";
-    }
-    return nullptr;
-  }
   std::unique_ptr<fast::BackboneOp> backbone;
   std::unique_ptr<fast::NormalizationLossOp> norm;
   try {
@@ -223,6 +226,15 @@ FastTrainer::FastTrainer(LabelerImpl& model,
   encoder_ = std::make_unique<fast::ResBlockOp>(*model.encoder->block,
                                                 /*relu_out=*/true,
                                                 1.0f);
+  if (model.conditioned()) {
+    // ConditionedScoreHead::PointKeys: point_proj(ReLU(block(ReLU(F)))).
+    head_ = std::make_unique<fast::ResBlockOp>(*model.label_head->block,
+                                               /*relu_out=*/true,
+                                               1.0f);
+    classifier_ =
+        std::make_unique<fast::LinearOp>(model.label_head->point_proj.get());
+    return;
+  }
   const float head_scale = static_cast<float>(
       1.0 / std::sqrt(static_cast<double>(model.options().d_model)));
   head_ = std::make_unique<fast::ResBlockOp>(*model.head->block,
@@ -233,10 +245,36 @@ FastTrainer::FastTrainer(LabelerImpl& model,
 
 FastTrainer::~FastTrainer() = default;
 
+namespace {
+
+/// Copies a `rows x cols` Mat into a contiguous `rows x cols` float buffer
+/// and back.
+void CopyOut(const fast::Mat& m, float* dst) {
+  for (int64_t r = 0; r < m.rows; ++r) {
+    std::memcpy(dst + r * m.cols,
+                m.row(r),
+                static_cast<size_t>(m.cols) * sizeof(float));
+  }
+}
+void CopyIn(const float* src, int64_t ld_src, fast::Mat& m) {
+  for (int64_t r = 0; r < m.rows; ++r) {
+    std::memcpy(m.row(r),
+                src + r * ld_src,
+                static_cast<size_t>(m.cols) * sizeof(float));
+  }
+}
+
+}  // namespace
+
 double FastTrainer::Step(const at::Tensor& points,
-                         const at::Tensor& label_ids) {
+                         const at::Tensor& label_ids,
+                         const LabelSlots* slots) {
   SOMA_CHECK(points.dim() == 3 && points.size(2) == 3)
       << "FastTrainer: points must be B x N x 3";
+  if (slots != nullptr && !model_.conditioned()) {
+    throw InternalError(
+        "FastTrainer: label slots given to a labeller with a fixed layout");
+  }
   SOMA_CHECK(label_ids.dim() == 2 && label_ids.size(0) == points.size(0) &&
              label_ids.size(1) == points.size(1))
       << "FastTrainer: label ids must be B x N";
@@ -274,19 +312,69 @@ double FastTrainer::Step(const at::Tensor& points,
   backbone_->Forward(ctx_, features_, backbone_out_);
   fast::Relu(backbone_out_, head_in_);
   head_->Forward(ctx_, head_in_, head_out_);
-  scores_.Resize(rows, classifier_->out_channels());
+  fast::Mat& head_y = model_.conditioned() ? keys_ : scores_;
+  head_y.Resize(rows, classifier_->out_channels());
   classifier_->Forward(
-      ctx_, head_out_.data(), head_out_.ld, rows, scores_.data(), scores_.ld);
-  const double loss = loss_->ForwardBackward(
-      ctx_, scores_, ids.data_ptr<int64_t>(), num_labels, d_scores_);
+      ctx_, head_out_.data(), head_out_.ld, rows, head_y.data(), head_y.ld);
+  double loss = 0.0;
+  if (model_.conditioned()) {
+    // The label side on torch autograd, from the point keys to the scores.
+    const LabelSlots layout_slots =
+        slots != nullptr ? LabelSlots{} : model_.LayoutSlots();
+    const LabelSlots& batch_slots = slots != nullptr ? *slots : layout_slots;
+    const at::Tensor mask =
+        CheckLabelSlots(
+            batch_slots, num_labels, model_.descriptor_width(), ctx_.batch)
+            .contiguous();
+    torch::AutoGradMode enable_grad(true);
+    const int64_t d = keys_.cols;
+    at::Tensor keys = torch::empty({ctx_.batch, n, d}, torch::kFloat);
+    CopyOut(keys_, keys.data_ptr<float>());
+    keys.requires_grad_(true);
+    const at::Tensor scores =
+        model_.ConditionedScores(keys.transpose(1, 2), batch_slots)
+            .contiguous();  // B x N x L
+    scores_.Resize(rows, num_labels);
+    CopyIn(scores.data_ptr<float>(), num_labels, scores_);
+    const fast::LabelMask label_mask{mask.data_ptr<bool>(),
+                                     mask.size(0) == 1 ? 0 : num_labels};
+    loss = loss_->ForwardBackward(ctx_,
+                                  scores_,
+                                  ids.data_ptr<int64_t>(),
+                                  num_labels,
+                                  label_mask,
+                                  d_scores_);
+    // Overwrite the label side's gradients, as the kernels do theirs.
+    for (at::Tensor& p : model_.label_encoder->parameters()) {
+      p.mutable_grad() = at::Tensor();
+    }
+    for (at::Tensor& p : model_.label_head->label_proj->parameters()) {
+      p.mutable_grad() = at::Tensor();
+    }
+    model_.label_head->log_scale.mutable_grad() = at::Tensor();
+    scores.backward(torch::from_blob(d_scores_.data(),
+                                     {ctx_.batch, n, num_labels},
+                                     {n * d_scores_.ld, d_scores_.ld, 1},
+                                     torch::kFloat));
+    d_keys_.Resize(rows, d);
+    CopyIn(keys.grad().contiguous().data_ptr<float>(), d, d_keys_);
+  } else {
+    loss = loss_->ForwardBackward(ctx_,
+                                  scores_,
+                                  ids.data_ptr<int64_t>(),
+                                  num_labels,
+                                  fast::LabelMask{},
+                                  d_scores_);
+  }
 
   // Backward.
+  const fast::Mat& d_head_y = model_.conditioned() ? d_keys_ : d_scores_;
   d_head_out_.Resize(rows, head_out_.cols);
   classifier_->Backward(ctx_,
                         head_out_.data(),
                         head_out_.ld,
-                        d_scores_.data(),
-                        d_scores_.ld,
+                        d_head_y.data(),
+                        d_head_y.ld,
                         rows,
                         d_head_out_.data(),
                         d_head_out_.ld,

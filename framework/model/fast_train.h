@@ -26,6 +26,10 @@
 // accumulation (bf16_gemm.h); weights, optimizer state, BatchNorm, attention,
 // Sinkhorn and the loss stay fp32/double.
 //
+// A layout-conditioned labeller (model=soma_any_layout) trains on the same
+// kernels for its point side and on torch autograd for its label side (see
+// FastTrainer::Step).
+//
 // Every component declares its own fast path: BackboneImpl::MakeFastTrainOp
 // and NormalizationImpl::MakeFastLossOp return nullptr with a reason when a
 // component has none, and FastTrainer::Create reports that reason, so a new
@@ -56,6 +60,7 @@ class Optimizer;
 namespace soma {
 
 class LabelerImpl;
+struct LabelSlots;
 class SelfAttentionImpl;
 class Conv1dBackboneImpl;
 class ResConv1DBlockImpl;
@@ -277,16 +282,28 @@ class Conv1dBackboneOp : public BackboneOp {
   Mat dt_, du_;
 };
 
+/// Which label slots of each frame hold a label (a layout-conditioned
+/// labeller's padded slots do not): `data` null (all do), or bool rows of
+/// `num_labels`, `frame_stride` apart (0: one row shared by every frame).
+/// A padded slot's loss weight is zero (its column, "not available", stays
+/// in G', as the trainer's targets).
+struct LabelMask {
+  const bool* data = nullptr;
+  int64_t frame_stride = 0;
+};
+
 /// A normalization and the loss on its output, per frame: scores `rows x
 /// C` -> the batch loss (sum over frames) and d loss / d scores.
 class NormalizationLossOp {
  public:
   virtual ~NormalizationLossOp() = default;
-  /// Also writes the normalization's own parameter gradients.
+  /// Also writes the normalization's own parameter gradients. A `mask`
+  /// with data needs the Sinkhorn op (InternalError otherwise).
   virtual double ForwardBackward(const Context& ctx,
                                  const Mat& scores,
                                  const int64_t* label_ids,
                                  int64_t num_labels,
+                                 const LabelMask& mask,
                                  Mat& d_scores) = 0;
 };
 
@@ -323,7 +340,19 @@ class FastTrainer {
   /// parameters' gradients and updates the BatchNorm running statistics
   /// (as torch's forward in training mode). Returns the batch loss (the sum
   /// over frames, as the torch engine).
-  double Step(const at::Tensor& points, const at::Tensor& label_ids);
+  ///
+  /// A layout-conditioned labeller (model=soma_any_layout) takes the batch's
+  /// label `slots` (LabelerImpl::ForwardSlots; null: the layout it holds,
+  /// LabelerImpl::LayoutSlots) and the trainer's loss targets (padded slots
+  /// weigh zero). Its point side (encoder, backbone, the score head's block
+  /// and point projection) runs on the kernels; its label side (label
+  /// encoder, label projection, the scaled product, the padded slots'
+  /// scores) on torch autograd (LabelerImpl::ConditionedScores), fed the
+  /// point keys and handing their gradient back; Sinkhorn and the loss on
+  /// the kernels again. A plain labeller given slots: InternalError.
+  double Step(const at::Tensor& points,
+              const at::Tensor& label_ids,
+              const LabelSlots* slots = nullptr);
 
   internal::KernelIsa isa() const { return ctx_.isa; }
   bool bf16() const { return ctx_.bf16; }
@@ -338,12 +367,14 @@ class FastTrainer {
   fast::Context ctx_;
   std::unique_ptr<fast::ResBlockOp> encoder_;
   std::unique_ptr<fast::BackboneOp> backbone_;
+  // The score head's block, then its classifier (plain) or point
+  // projection (conditioned: the point keys).
   std::unique_ptr<fast::ResBlockOp> head_;
   std::unique_ptr<fast::LinearOp> classifier_;
   std::unique_ptr<fast::NormalizationLossOp> loss_;
   fast::Mat points_, features_, backbone_out_, head_in_, head_out_, scores_;
   fast::Mat d_scores_, d_head_out_, d_head_in_, d_features_;
-  std::vector<int64_t> labels_;
+  fast::Mat keys_, d_keys_;  // conditioned: point keys (rows x D)
 };
 
 /// One Adam step (torch::optim::Adam semantics: classic L2 weight decay,

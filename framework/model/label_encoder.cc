@@ -176,11 +176,20 @@ ConditionedScoreHeadImpl::ConditionedScoreHeadImpl(int64_t d_model,
 torch::Tensor ConditionedScoreHeadImpl::forward(const torch::Tensor& features,
                                                 const torch::Tensor& labels,
                                                 const torch::Tensor& mask) {
-  const torch::Tensor points =
-      point_proj(torch::relu(block(torch::relu(features))));  // B D N
-  const torch::Tensor keys = label_proj(labels);              // B' D L
+  return Scores(PointKeys(features), labels, mask);
+}
+
+torch::Tensor ConditionedScoreHeadImpl::PointKeys(
+    const torch::Tensor& features) {
+  return point_proj(torch::relu(block(torch::relu(features))));  // B D N
+}
+
+torch::Tensor ConditionedScoreHeadImpl::Scores(const torch::Tensor& point_keys,
+                                               const torch::Tensor& labels,
+                                               const torch::Tensor& mask) {
+  const torch::Tensor keys = label_proj(labels);  // B' D L
   const torch::Tensor scores =
-      torch::matmul(points.transpose(1, 2), keys) *
+      torch::matmul(point_keys.transpose(1, 2), keys) *
       (log_scale.exp() / std::sqrt(static_cast<double>(d_model_)));  // B N L
   return scores.masked_fill(mask.logical_not().unsqueeze(1), kPaddedSlotScore);
 }

@@ -105,10 +105,19 @@ class ConditionedScoreHeadImpl : public torch::nn::Module {
  public:
   ConditionedScoreHeadImpl(int64_t d_model, int64_t hidden);
   /// `features` `B x D x N`, `labels` `B x D x L` or `1 x D x L`, `mask`
-  /// `B x L` or `1 x L` bool -> scores `B x N x L`.
+  /// `B x L` or `1 x L` bool -> scores `B x N x L`:
+  /// Scores(PointKeys(features), labels, mask).
   torch::Tensor forward(const torch::Tensor& features,
                         const torch::Tensor& labels,
                         const torch::Tensor& mask);
+  /// The point side, F W_p: `B x D x N` -> `B x D x N` (what the fast
+  /// training engine computes with its own kernels).
+  torch::Tensor PointKeys(const torch::Tensor& features);
+  /// The label side and the scaled product: `point_keys` `B x D x N` (from
+  /// PointKeys), `labels` and `mask` as forward() -> scores `B x N x L`.
+  torch::Tensor Scores(const torch::Tensor& point_keys,
+                       const torch::Tensor& labels,
+                       const torch::Tensor& mask);
 
   ResConv1DBlock block{nullptr};
   torch::nn::Conv1d point_proj{nullptr};

@@ -131,6 +131,11 @@ void LabelerImpl::SetLayout(const torch::Tensor& descriptors) {
 LabelerOutput LabelerImpl::forward(const torch::Tensor& points,
                                    bool return_attention) {
   if (!options_.conditioned) return Run(points, nullptr, return_attention);
+  const LabelSlots slots = LayoutSlots();
+  return Run(points, &slots, return_attention);
+}
+
+LabelSlots LabelerImpl::LayoutSlots() const {
   // A slot whose descriptor row is all zero is padded (a real descriptor
   // holds a unit normal): a layout with fewer labels than the model's slots.
   const torch::Tensor present = layout_descriptors.ne(0).any(1);
@@ -140,10 +145,20 @@ LabelerOutput LabelerImpl::forward(const torch::Tensor& points,
         "was not called and the checkpoint holds none: a model trained on "
         "sampled layouts labels the layout it is given, e.g. layout=cmu41)");
   }
-  const LabelSlots slots{
+  return LabelSlots{
       layout_descriptors.unsqueeze(0),
       present.all().item<bool>() ? torch::Tensor() : present.unsqueeze(0)};
-  return Run(points, &slots, return_attention);
+}
+
+torch::Tensor LabelerImpl::ConditionedScores(const torch::Tensor& point_keys,
+                                             const LabelSlots& slots) {
+  const torch::Tensor mask =
+      CheckLabelSlots(
+          slots, options_.num_labels, descriptor_width(), point_keys.size(0))
+          .to(point_keys.device());
+  const torch::Tensor labels =
+      label_encoder(slots.descriptors.to(point_keys.options()), mask);
+  return label_head->Scores(point_keys, labels, mask);
 }
 
 LabelerOutput LabelerImpl::ForwardSlots(const torch::Tensor& points,
@@ -166,11 +181,9 @@ LabelerOutput LabelerImpl::Run(const torch::Tensor& points,
                                  ShapeString(points)));
   }
   const int64_t n = points.size(1);
-  torch::Tensor mask;
-  if (slots != nullptr) {
-    mask = CheckLabelSlots(
-               *slots, options_.num_labels, descriptor_width(), points.size(0))
-               .to(points.device());
+  if (slots != nullptr) {  // fail before the backbone's work
+    CheckLabelSlots(
+        *slots, options_.num_labels, descriptor_width(), points.size(0));
   }
   LabelerOutput out;
   const torch::Tensor centred = MedianCenter(points);
@@ -179,9 +192,7 @@ LabelerOutput LabelerImpl::Run(const torch::Tensor& points,
   features =
       backbone->forward(features, return_attention ? &attention : nullptr);
   if (slots != nullptr) {
-    const torch::Tensor labels =
-        label_encoder(slots->descriptors.to(points.options()), mask);
-    out.scores = label_head(features, labels, mask);
+    out.scores = ConditionedScores(label_head->PointKeys(features), *slots);
   } else {
     out.scores = head(features);
   }

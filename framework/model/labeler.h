@@ -93,8 +93,8 @@ class LabelerImpl : public torch::nn::Module {
 
   const LabelerOptions& options() const { return options_; }
   int64_t num_labels() const { return options_.num_labels; }
-  /// True for a layout-conditioned labeler (the fast engines do not
-  /// support it yet: they need `head`).
+  /// True for a layout-conditioned labeler (the fast inference engine does
+  /// not support it: it needs `head`).
   bool conditioned() const { return options_.conditioned; }
   /// Q of a conditioned labeler's descriptors (0 otherwise).
   int64_t descriptor_width() const {
@@ -106,6 +106,17 @@ class LabelerImpl : public torch::nn::Module {
   /// them as padded. ShapeError on another shape, ConfigError for a plain
   /// labeler.
   void SetLayout(const torch::Tensor& descriptors);
+  /// The label slots of the layout set by SetLayout (or loaded): `1 x L x
+  /// Q` descriptors, the mask undefined when every slot holds a label.
+  /// ConfigError when there is none.
+  LabelSlots LayoutSlots() const;
+  /// A conditioned labeler's scores `B x N x L` from the point side
+  /// (`label_head->PointKeys(features)`, `B x D x N`) and `slots`: checks the
+  /// slots, embeds the labels (label_encoder) and matches them
+  /// (ConditionedScoreHead::Scores). What forward() computes after the
+  /// backbone; the fast training engine calls it on its own point keys.
+  torch::Tensor ConditionedScores(const torch::Tensor& point_keys,
+                                  const LabelSlots& slots);
 
   PointEncoder encoder{nullptr};
   Backbone backbone{nullptr};

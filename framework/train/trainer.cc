@@ -1079,7 +1079,8 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
         torch::Tensor loss;
         double value = 0.0;
         if (fast_ != nullptr) {
-          value = fast_->Step(t.points, t.labels);
+          value =
+              fast_->Step(t.points, t.labels, t.has_slots ? &t.slots : nullptr);
         } else {
           const LabelerOutput out = ForwardBatch(model_, t);
           loss =

@@ -341,6 +341,68 @@ TEST(FastLoss, SinkhornMatchesTorchAutograd) {
   worst_log.Print("Sinkhorn log-domain");
 }
 
+TEST(FastLoss, SinkhornWithPaddedLabelSlotsMatchesTorchAutograd) {
+  // A layout-conditioned labeller's padded slots score kPaddedSlotScore =
+  // -1e4 (label_encoder.h): those couplings are exact zeros of the kernel
+  // and left out of the span (kSinkhornUnderflowNats), so this frame runs
+  // the exp-domain path; torch's log-domain iteration is the reference.
+  torch::manual_seed(11);
+  FrameLossScratch scratch;
+  for (const KernelIsa isa : {KernelIsa::kPortable, KernelIsa::kAuto}) {
+    for (const int iters : {1, 35}) {
+      const int64_t n = 12;
+      const int64_t l = 9;
+      torch::Tensor scores = torch::randn({n, l}).to(torch::kFloat) * 3.0;
+      scores.select(1, 0).fill_(-1e4f);
+      scores.select(1, l - 1).fill_(-1e4f);
+      const float alpha = 0.7f;
+      // Real labels 1..l-2 on the first points, the rest null.
+      std::vector<int64_t> ids(static_cast<size_t>(n), l);
+      for (int64_t j = 1; j < l - 1; ++j) ids[static_cast<size_t>(j)] = j;
+      const std::string context = "T=" + std::to_string(iters) + " isa=" +
+                                  std::to_string(static_cast<int>(isa));
+      const TorchReference ref = TorchSinkhorn(scores, alpha, iters, ids);
+      const std::vector<float> s = Strided(scores, l);
+      std::vector<float> g(static_cast<size_t>((n + 1) * (l + 1)));
+      std::vector<float> w(g.size());
+      BuildFrameTargets(ids.data(), n, l, true, g.data(), w.data());
+      std::vector<float> a(g.size());
+      std::vector<float> d(static_cast<size_t>(n * l));
+      double d_alpha = 0.0;
+      const double loss = SinkhornLossFrame(s.data(),
+                                            l,
+                                            n,
+                                            l,
+                                            alpha,
+                                            iters,
+                                            g.data(),
+                                            w.data(),
+                                            a.data(),
+                                            d.data(),
+                                            l,
+                                            1.0,
+                                            &d_alpha,
+                                            scratch,
+                                            isa);
+      EXPECT_LE(RelativeError(loss, ref.loss, 1e-12), kValueTol) << context;
+      const torch::Tensor at =
+          torch::from_blob(a.data(), {n + 1, l + 1}, torch::kFloat)
+              .to(torch::kDouble);
+      EXPECT_LE(((at - ref.log_assignment).abs() /
+                 ref.log_assignment.abs().clamp_min(1.0))
+                    .max()
+                    .item<double>(),
+                kValueTol)
+          << context;
+      CheckGradient(FromStrided(d, n, l, l), ref.d_scores, context);
+      const double grad_scale = std::max(
+          std::abs(ref.d_alpha), ref.d_scores.abs().max().item<double>());
+      EXPECT_LE(std::abs(d_alpha - ref.d_alpha) / grad_scale, kGradTol)
+          << context;
+    }
+  }
+}
+
 TEST(FastLoss, SinkhornFiniteDifferences) {
   torch::manual_seed(5);
   const int64_t n = 5;

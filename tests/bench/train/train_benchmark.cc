@@ -5,6 +5,11 @@
 // step `soma train` runs: `torch` is libtorch autograd + torch::optim::Adam,
 // `fast` is FastTrainer::Step + FusedAdamStep (train.engine=fast),
 // `fast_bf16` the same with train.precision=bf16 (AMX; skipped elsewhere).
+// `cpu_any_layout_*`: the layout-conditioned labeller (model=soma_any_layout
+// at scale=cpu) on sampled layouts as after the first epoch, every frame its
+// own slot descriptors (L = 53 slots; odd frames hold 39 labels and 14 padded
+// slots, as pig39 beside soma53), N = 56 points; its fast engine runs the
+// label side on torch autograd (FastTrainer::Step).
 // items_per_second = training frames per second; peak_rss_mib = the
 // process's peak resident memory after the run (the rows run in order, so it
 // is cumulative).
@@ -15,6 +20,7 @@
 #include "framework/config/yaml_io.h"
 #include "framework/core/build_info.h"
 #include "framework/model/fast_train.h"
+#include "framework/model/label_encoder.h"
 #include "framework/model/labeler.h"
 #include "framework/model/loss.h"
 #include "framework/model/torch_utils.h"
@@ -32,6 +38,8 @@ namespace {
 
 constexpr int64_t kNumLabels = 41;
 constexpr int64_t kNumPoints = 44;
+constexpr int64_t kNumSlots = 53;     // the conditioned rows: soma53's labels
+constexpr int64_t kSmallLayout = 39;  // and pig39's on odd frames
 
 struct Scale {
   ConfigNode model;
@@ -41,10 +49,10 @@ struct Scale {
 
 // configs/model/soma.yaml and configs/normalization/sinkhorn.yaml with the
 // `model` and `train.batch_size` overrides of configs/scale/<name>.yaml.
-Scale LoadScale(const std::string& name) {
+Scale LoadScale(const std::string& name, const std::string& model) {
   const std::string configs = std::string(SOMA_SOURCE_DIR) + "/configs/";
   Scale scale;
-  scale.model = LoadConfigFile(configs + "model/soma.yaml").content;
+  scale.model = LoadConfigFile(configs + "model/" + model + ".yaml").content;
   scale.normalization =
       LoadConfigFile(configs + "normalization/sinkhorn.yaml").content;
   const ConfigNode preset =
@@ -72,31 +80,57 @@ double PeakRssMib() {
 
 void BM_TrainStep(benchmark::State& state,
                   const std::string& name,
-                  const std::string& engine) {
+                  const std::string& engine,
+                  const std::string& model_name = "soma") {
   bench::RegisterComponents();  // registries (BuildLabeler); once per process
   SetTorchThreads(static_cast<int>(state.range(0)));
-  const Scale scale = LoadScale(name);
+  const Scale scale = LoadScale(name, model_name);
+  const bool conditioned = model_name == "soma_any_layout";
+  const int64_t num_labels = conditioned ? kNumSlots : kNumLabels;
+  const int64_t num_points = conditioned ? kNumSlots + 3 : kNumPoints;
   torch::manual_seed(0);
-  Labeler model = BuildLabeler(scale.model, scale.normalization, kNumLabels);
+  Labeler model = BuildLabeler(scale.model, scale.normalization, num_labels);
   model->train();
   auto optimizer = AdamSpec().Build(model->parameters());
   const SomaLabelingLoss loss;
   const int64_t b = scale.batch_size;
-  // Frames: 41 labelled points in random slots, 3 null slots (one ghost, two
-  // zero points).
-  torch::Tensor points = torch::randn({b, kNumPoints, 3}) * 0.4;
-  torch::Tensor labels = torch::empty({b, kNumPoints}, torch::kLong);
+  // Frames: every present label on a point in random order, 3 null points
+  // (one ghost, two zero points).
+  LabelSlots slots;
+  if (conditioned) {
+    slots.descriptors =
+        torch::randn({b, num_labels, model->descriptor_width()});
+    slots.mask = torch::ones({b, num_labels}, torch::kBool);
+    for (int64_t f = 1; f < b; f += 2) {
+      slots.mask[f]
+          .narrow(0, kSmallLayout, num_labels - kSmallLayout)
+          .fill_(false);
+    }
+    slots.descriptors.masked_fill_(slots.mask.logical_not().unsqueeze(2), 0.0);
+  }
+  torch::Tensor points = torch::randn({b, num_points, 3}) * 0.4;
+  torch::Tensor labels = torch::empty({b, num_points}, torch::kLong);
   for (int64_t f = 0; f < b; ++f) {
+    const int64_t present =
+        conditioned && f % 2 == 1 ? kSmallLayout : num_labels;
     const torch::Tensor ids = torch::cat(
-        {torch::arange(kNumLabels),
-         torch::full({kNumPoints - kNumLabels}, kNumLabels, torch::kLong)});
-    const torch::Tensor perm = torch::randperm(kNumPoints);
+        {torch::arange(present),
+         torch::full({num_points - present}, num_labels, torch::kLong)});
+    const torch::Tensor perm = torch::randperm(num_points);
     labels[f] = ids.index_select(0, perm);
     const torch::Tensor null_slots =
-        labels[f].eq(kNumLabels).nonzero().view(-1).slice(0, 0, 2);
+        labels[f].eq(num_labels).nonzero().view(-1).slice(0, 0, 2);
     points[f].index_fill_(0, null_slots, 0.0);
   }
-  const AugmentedTargets targets = BuildAugmentedTargets(labels, kNumLabels);
+  AugmentedTargets targets = BuildAugmentedTargets(labels, num_labels);
+  if (conditioned) {  // as the trainer: padded slots weigh zero
+    const torch::Tensor columns =
+        torch::cat({slots.mask.to(targets.weights.scalar_type()),
+                    torch::ones({b, 1}, targets.weights.options())},
+                   1)
+            .unsqueeze(1);
+    targets.weights = (targets.weights * columns).contiguous();
+  }
   std::unique_ptr<FastTrainer> fast;
   if (engine == "fast" || engine == "fast_bf16") {
     std::string why_not;
@@ -110,11 +144,13 @@ void BM_TrainStep(benchmark::State& state,
   }
   auto step = [&]() -> double {
     if (fast != nullptr) {
-      const double value = fast->Step(points, labels);
+      const double value =
+          fast->Step(points, labels, conditioned ? &slots : nullptr);
       if (!FusedAdamStep(*optimizer)) optimizer->step();
       return value;
     }
-    const LabelerOutput out = model->forward(points);
+    const LabelerOutput out = conditioned ? model->ForwardSlots(points, slots)
+                                          : model->forward(points);
     const torch::Tensor value = loss.Compute(out.log_assignment, targets);
     optimizer->zero_grad();
     value.backward();
@@ -144,6 +180,18 @@ BENCHMARK_CAPTURE(BM_TrainStep, cpu_fast, "cpu", "fast")
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 BENCHMARK_CAPTURE(BM_TrainStep, cpu_fast_bf16, "cpu", "fast_bf16")
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(
+    BM_TrainStep, cpu_any_layout_torch, "cpu", "torch", "soma_any_layout")
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(
+    BM_TrainStep, cpu_any_layout_fast, "cpu", "fast", "soma_any_layout")
     ->Arg(1)
     ->Arg(2)
     ->Unit(benchmark::kMillisecond)
