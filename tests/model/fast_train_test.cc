@@ -22,6 +22,7 @@
 #include <torch/optim/adam.h>
 #include <torch/torch.h>
 
+#include "tests/model/conditioned_labeler.h"
 #include <cstdio>
 #include <string>
 #include <vector>
@@ -120,6 +121,22 @@ void ExpectGradsMatch(
             .item<double>();
     EXPECT_LT(diff / scale, tol) << item.key();
     ++i;
+  }
+}
+
+/// Every buffer of `module` (BatchNorm running statistics after a training
+/// step) within `tol` of the reference's.
+void ExpectBuffersMatch(torch::nn::Module& module,
+                        torch::nn::Module& reference,
+                        double tol) {
+  const auto buffers = reference.named_buffers();
+  const auto own = module.named_buffers();
+  ASSERT_EQ(buffers.size(), own.size());
+  for (size_t i = 0; i < buffers.size(); ++i) {
+    EXPECT_LT(RelativeError(own[i].value().to(torch::kDouble),
+                            buffers[i].value().to(torch::kDouble)),
+              tol)
+        << buffers[i].key();
   }
 }
 
@@ -560,15 +577,7 @@ void CheckWholeModel(int64_t d,
       "  torch float32 vs float64: worst relative gradient error %.3g\n",
       torch_worst);
   ExpectGradsMatch(*model, reference, tol);
-  const auto buffers = exact->named_buffers();
-  const auto fast_buffers = model->named_buffers();
-  ASSERT_EQ(buffers.size(), fast_buffers.size());
-  for (size_t i = 0; i < buffers.size(); ++i) {
-    EXPECT_LT(RelativeError(fast_buffers[i].value().to(torch::kDouble),
-                            buffers[i].value().to(torch::kDouble)),
-              tol)
-        << buffers[i].key();
-  }
+  ExpectBuffersMatch(*model, *exact, tol);
 }
 
 TEST(FastTrain, WholeModelGradientsMatchAutograd) {
@@ -841,28 +850,7 @@ class PlainBackboneImpl : public BackboneImpl {
 // The layout-conditioned labeller (model=soma_any_layout): the point side on
 // the kernels, the label side on torch autograd.
 
-constexpr int64_t kDescriptorWidth = 3 + 3 + 1 + 24 + 4;  // 24 joints
-
-Labeler MakeConditionedLabeler(int64_t num_labels, int num_iters) {
-  LabelerOptions options;
-  options.num_labels = num_labels;
-  options.d_model = 12;
-  options.hidden = 16;
-  options.conditioned = true;
-  options.label_encoder.descriptor_width = kDescriptorWidth;
-  options.label_encoder.d_model = 12;
-  options.label_encoder.hidden = 10;
-  options.label_encoder.num_layers = 2;
-  options.label_encoder.num_heads = 3;
-  SelfAttentionOptions attention;
-  attention.d_model = 12;
-  attention.num_layers = 2;
-  attention.num_heads = 3;
-  SinkhornOptions sinkhorn;
-  sinkhorn.num_iters = num_iters;
-  return Labeler(
-      options, SelfAttention(attention).ptr(), Sinkhorn(sinkhorn).ptr());
-}
+constexpr int64_t kDescriptorWidth = testing::kConditionedDescriptorWidth;
 
 void CopyState(torch::nn::Module& from, torch::nn::Module& to) {
   torch::NoGradGuard no_grad;
@@ -946,7 +934,7 @@ std::vector<std::pair<std::string, torch::Tensor>> ConditionedTorchGrads(
 
 void CheckConditionedModel(KernelIsa isa, bool batch_slots, int num_iters) {
   const int64_t b = 3, n = 10, l = 6;
-  Labeler model = MakeConditionedLabeler(l, num_iters);
+  Labeler model = testing::SmallConditionedLabeler(l, num_iters);
   Randomize(*model);
   torch::Tensor points, labels;
   LabelSlots slots;
@@ -962,7 +950,7 @@ void CheckConditionedModel(KernelIsa isa, bool batch_slots, int num_iters) {
       }
     }
   }
-  Labeler exact = MakeConditionedLabeler(l, num_iters);
+  Labeler exact = testing::SmallConditionedLabeler(l, num_iters);
   CopyState(*model, *exact);
   model->train();
   double exact_loss = 0.0;
@@ -981,15 +969,7 @@ void CheckConditionedModel(KernelIsa isa, bool batch_slots, int num_iters) {
       trainer->Step(points, labels, batch_slots ? &slots : nullptr);
   EXPECT_NEAR(fast_value, exact_loss, kTol * std::abs(exact_loss));
   ExpectGradsMatch(*model, reference);
-  const auto buffers = exact->named_buffers();
-  const auto fast_buffers = model->named_buffers();
-  ASSERT_EQ(buffers.size(), fast_buffers.size());
-  for (size_t i = 0; i < buffers.size(); ++i) {
-    EXPECT_LT(RelativeError(fast_buffers[i].value().to(torch::kDouble),
-                            buffers[i].value().to(torch::kDouble)),
-              kTol)
-        << buffers[i].key();
-  }
+  ExpectBuffersMatch(*model, *exact, kTol);
 }
 
 TEST(FastTrain, ConditionedModelGradientsMatchAutograd) {

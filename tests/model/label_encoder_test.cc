@@ -15,6 +15,7 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include "tests/model/conditioned_labeler.h"
 #include <set>
 #include <string>
 #include <vector>
@@ -22,33 +23,14 @@
 namespace soma {
 namespace {
 
-constexpr int64_t kWidth = 3 + 3 + 1 + 24 + 4;  // LabelDescriptorWidth(24)
-constexpr double kTol = 1e-5;                   // float32 forward
-constexpr double kGradTol = 1e-6;               // float64 FD vs autograd
+using testing::SmallConditionedLabeler;
+
+constexpr int64_t kWidth = testing::kConditionedDescriptorWidth;
+constexpr double kTol = 1e-5;      // float32 forward
+constexpr double kGradTol = 1e-6;  // float64 FD vs autograd
 
 ConfigNode LoadConfig(const std::string& relative) {
   return LoadConfigFile(testing::SourceDir() / "configs" / relative).content;
-}
-
-Labeler SmallConditionedLabeler(int64_t num_labels, int num_iters = 35) {
-  LabelerOptions options;
-  options.num_labels = num_labels;
-  options.d_model = 12;
-  options.hidden = 16;
-  options.conditioned = true;
-  options.label_encoder.descriptor_width = kWidth;
-  options.label_encoder.d_model = 12;
-  options.label_encoder.hidden = 10;
-  options.label_encoder.num_layers = 2;
-  options.label_encoder.num_heads = 3;
-  SelfAttentionOptions attention;
-  attention.d_model = 12;
-  attention.num_layers = 2;
-  attention.num_heads = 3;
-  SinkhornOptions sinkhorn;
-  sinkhorn.num_iters = num_iters;
-  return Labeler(
-      options, SelfAttention(attention).ptr(), Sinkhorn(sinkhorn).ptr());
 }
 
 torch::Tensor RandomDescriptors(int64_t batch, int64_t labels) {

@@ -1,0 +1,39 @@
+// A small layout-conditioned labeller (model=soma_any_layout) for the model
+// tests: d_model 12, 2 self-attention layers of 3 heads, a label encoder of 2
+// layers, descriptors of a 24-joint body, Sinkhorn with `num_iters`.
+#pragma once
+
+#include "framework/model/label_encoder.h"
+#include "framework/model/labeler.h"
+#include "framework/model/layers.h"
+#include "framework/model/normalization.h"
+
+#include <cstdint>
+
+namespace soma::testing {
+
+/// Q of LabelDescriptorWidth(24) (body/vertex_descriptors.h).
+inline constexpr int64_t kConditionedDescriptorWidth = 3 + 3 + 1 + 24 + 4;
+
+inline Labeler SmallConditionedLabeler(int64_t num_labels, int num_iters = 35) {
+  LabelerOptions options;
+  options.num_labels = num_labels;
+  options.d_model = 12;
+  options.hidden = 16;
+  options.conditioned = true;
+  options.label_encoder.descriptor_width = kConditionedDescriptorWidth;
+  options.label_encoder.d_model = 12;
+  options.label_encoder.hidden = 10;
+  options.label_encoder.num_layers = 2;
+  options.label_encoder.num_heads = 3;
+  SelfAttentionOptions attention;
+  attention.d_model = 12;
+  attention.num_layers = 2;
+  attention.num_heads = 3;
+  SinkhornOptions sinkhorn;
+  sinkhorn.num_iters = num_iters;
+  return Labeler(
+      options, SelfAttention(attention).ptr(), Sinkhorn(sinkhorn).ptr());
+}
+
+}  // namespace soma::testing
