@@ -266,6 +266,49 @@ void CopyIn(const float* src, int64_t ld_src, fast::Mat& m) {
 
 }  // namespace
 
+double FastTrainer::LabelSideLoss(const int64_t* label_ids,
+                                  const LabelSlots* slots) {
+  const int64_t n = ctx_.points;
+  const int64_t rows = ctx_.rows();
+  const int64_t num_labels = model_.num_labels();
+  const LabelSlots layout_slots =
+      slots != nullptr ? LabelSlots{} : model_.LayoutSlots();
+  const LabelSlots& batch_slots = slots != nullptr ? *slots : layout_slots;
+  const at::Tensor mask =
+      CheckLabelSlots(
+          batch_slots, num_labels, model_.descriptor_width(), ctx_.batch)
+          .contiguous();
+  torch::AutoGradMode enable_grad(true);
+  const int64_t d = keys_.cols;
+  at::Tensor keys = torch::empty({ctx_.batch, n, d}, torch::kFloat);
+  CopyOut(keys_, keys.data_ptr<float>());
+  keys.requires_grad_(true);
+  const at::Tensor scores =
+      model_.ConditionedScores(keys.transpose(1, 2), batch_slots)
+          .contiguous();  // B x N x L
+  scores_.Resize(rows, num_labels);
+  CopyIn(scores.data_ptr<float>(), num_labels, scores_);
+  const fast::LabelMask label_mask{mask.data_ptr<bool>(),
+                                   mask.size(0) == 1 ? 0 : num_labels};
+  const double loss = loss_->ForwardBackward(
+      ctx_, scores_, label_ids, num_labels, label_mask, d_scores_);
+  // Overwrite the label side's gradients, as the kernels do theirs.
+  for (at::Tensor& p : model_.label_encoder->parameters()) {
+    p.mutable_grad() = at::Tensor();
+  }
+  for (at::Tensor& p : model_.label_head->label_proj->parameters()) {
+    p.mutable_grad() = at::Tensor();
+  }
+  model_.label_head->log_scale.mutable_grad() = at::Tensor();
+  scores.backward(torch::from_blob(d_scores_.data(),
+                                   {ctx_.batch, n, num_labels},
+                                   {n * d_scores_.ld, d_scores_.ld, 1},
+                                   torch::kFloat));
+  d_keys_.Resize(rows, d);
+  CopyIn(keys.grad().contiguous().data_ptr<float>(), d, d_keys_);
+  return loss;
+}
+
 double FastTrainer::Step(const at::Tensor& points,
                          const at::Tensor& label_ids,
                          const LabelSlots* slots) {
@@ -316,58 +359,15 @@ double FastTrainer::Step(const at::Tensor& points,
   head_y.Resize(rows, classifier_->out_channels());
   classifier_->Forward(
       ctx_, head_out_.data(), head_out_.ld, rows, head_y.data(), head_y.ld);
-  double loss = 0.0;
-  if (model_.conditioned()) {
-    // The label side on torch autograd, from the point keys to the scores.
-    const LabelSlots layout_slots =
-        slots != nullptr ? LabelSlots{} : model_.LayoutSlots();
-    const LabelSlots& batch_slots = slots != nullptr ? *slots : layout_slots;
-    const at::Tensor mask =
-        CheckLabelSlots(
-            batch_slots, num_labels, model_.descriptor_width(), ctx_.batch)
-            .contiguous();
-    torch::AutoGradMode enable_grad(true);
-    const int64_t d = keys_.cols;
-    at::Tensor keys = torch::empty({ctx_.batch, n, d}, torch::kFloat);
-    CopyOut(keys_, keys.data_ptr<float>());
-    keys.requires_grad_(true);
-    const at::Tensor scores =
-        model_.ConditionedScores(keys.transpose(1, 2), batch_slots)
-            .contiguous();  // B x N x L
-    scores_.Resize(rows, num_labels);
-    CopyIn(scores.data_ptr<float>(), num_labels, scores_);
-    const fast::LabelMask label_mask{mask.data_ptr<bool>(),
-                                     mask.size(0) == 1 ? 0 : num_labels};
-    loss = loss_->ForwardBackward(ctx_,
-                                  scores_,
-                                  ids.data_ptr<int64_t>(),
-                                  num_labels,
-                                  label_mask,
-                                  d_scores_);
-    // Overwrite the label side's gradients, as the kernels do theirs.
-    for (at::Tensor& p : model_.label_encoder->parameters()) {
-      p.mutable_grad() = at::Tensor();
-    }
-    for (at::Tensor& p : model_.label_head->label_proj->parameters()) {
-      p.mutable_grad() = at::Tensor();
-    }
-    model_.label_head->log_scale.mutable_grad() = at::Tensor();
-    scores.backward(torch::from_blob(d_scores_.data(),
-                                     {ctx_.batch, n, num_labels},
-                                     {n * d_scores_.ld, d_scores_.ld, 1},
-                                     torch::kFloat));
-    d_keys_.Resize(rows, d);
-    CopyIn(keys.grad().contiguous().data_ptr<float>(), d, d_keys_);
-  } else {
-    loss = loss_->ForwardBackward(ctx_,
-                                  scores_,
-                                  ids.data_ptr<int64_t>(),
-                                  num_labels,
-                                  fast::LabelMask{},
-                                  d_scores_);
-  }
+  const double loss = model_.conditioned()
+                          ? LabelSideLoss(ids.data_ptr<int64_t>(), slots)
+                          : loss_->ForwardBackward(ctx_,
+                                                   scores_,
+                                                   ids.data_ptr<int64_t>(),
+                                                   num_labels,
+                                                   fast::LabelMask{},
+                                                   d_scores_);
 
-  // Backward.
   const fast::Mat& d_head_y = model_.conditioned() ? d_keys_ : d_scores_;
   d_head_out_.Resize(rows, head_out_.cols);
   classifier_->Backward(ctx_,

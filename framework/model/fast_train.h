@@ -363,6 +363,12 @@ class FastTrainer {
               std::unique_ptr<fast::NormalizationLossOp> loss,
               const FastTrainerOptions& options);
 
+  /// A conditioned labeller's label side (FastTrainer::Step): from the
+  /// point keys `keys_` to the scores on torch autograd, Sinkhorn and the
+  /// loss on the kernels, then the gradients back to `d_keys_` and the
+  /// label side's parameters. Returns the batch loss.
+  double LabelSideLoss(const int64_t* label_ids, const LabelSlots* slots);
+
   LabelerImpl& model_;
   fast::Context ctx_;
   std::unique_ptr<fast::ResBlockOp> encoder_;
