@@ -75,12 +75,13 @@ struct LabelMatch {
   int model_labels = 0;
   /// shared / capture_labels: the share of the capture the model can name.
   double capture_coverage() const {
-    return capture_labels > 0 ? double(shared) / capture_labels : 0.0;
+    return capture_labels > 0 ? static_cast<double>(shared) / capture_labels
+                              : 0.0;
   }
   /// shared / |capture ∪ model| (Jaccard).
   double jaccard() const {
     const int unite = capture_labels + model_labels - shared;
-    return unite > 0 ? double(shared) / unite : 0.0;
+    return unite > 0 ? static_cast<double>(shared) / unite : 0.0;
   }
   /// A capture matches a model when the model can name at least 90% of the
   /// capture's labels.

@@ -29,7 +29,7 @@ std::vector<std::string> Cmu41Labels() {
           "RFSH",   "RFWT", "RHEL", "RIEL", "RIHAND", "RIWR"};
 }
 
-BundledModel Model(std::string name,
+BundledModel Model(const std::string& name,
                    std::vector<std::string> labels,
                    int priority = 100) {
   BundledModel m;
