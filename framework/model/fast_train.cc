@@ -245,27 +245,6 @@ FastTrainer::FastTrainer(LabelerImpl& model,
 
 FastTrainer::~FastTrainer() = default;
 
-namespace {
-
-/// Copies a `rows x cols` Mat into a contiguous `rows x cols` float buffer
-/// and back.
-void CopyOut(const fast::Mat& m, float* dst) {
-  for (int64_t r = 0; r < m.rows; ++r) {
-    std::memcpy(dst + r * m.cols,
-                m.row(r),
-                static_cast<size_t>(m.cols) * sizeof(float));
-  }
-}
-void CopyIn(const float* src, int64_t ld_src, fast::Mat& m) {
-  for (int64_t r = 0; r < m.rows; ++r) {
-    std::memcpy(m.row(r),
-                src + r * ld_src,
-                static_cast<size_t>(m.cols) * sizeof(float));
-  }
-}
-
-}  // namespace
-
 double FastTrainer::LabelSideLoss(const int64_t* label_ids,
                                   const LabelSlots* slots) {
   const int64_t n = ctx_.points;
@@ -281,13 +260,18 @@ double FastTrainer::LabelSideLoss(const int64_t* label_ids,
   torch::AutoGradMode enable_grad(true);
   const int64_t d = keys_.cols;
   at::Tensor keys = torch::empty({ctx_.batch, n, d}, torch::kFloat);
-  CopyOut(keys_, keys.data_ptr<float>());
+  fast::CopyColumns(keys_.data(), keys_.ld, rows, d, keys.data_ptr<float>(), d);
   keys.requires_grad_(true);
   const at::Tensor scores =
       model_.ConditionedScores(keys.transpose(1, 2), batch_slots)
           .contiguous();  // B x N x L
   scores_.Resize(rows, num_labels);
-  CopyIn(scores.data_ptr<float>(), num_labels, scores_);
+  fast::CopyColumns(scores.data_ptr<float>(),
+                    num_labels,
+                    rows,
+                    num_labels,
+                    scores_.data(),
+                    scores_.ld);
   const fast::LabelMask label_mask{mask.data_ptr<bool>(),
                                    mask.size(0) == 1 ? 0 : num_labels};
   const double loss = loss_->ForwardBackward(
@@ -305,7 +289,12 @@ double FastTrainer::LabelSideLoss(const int64_t* label_ids,
                                    {n * d_scores_.ld, d_scores_.ld, 1},
                                    torch::kFloat));
   d_keys_.Resize(rows, d);
-  CopyIn(keys.grad().contiguous().data_ptr<float>(), d, d_keys_);
+  fast::CopyColumns(keys.grad().contiguous().data_ptr<float>(),
+                    d,
+                    rows,
+                    d,
+                    d_keys_.data(),
+                    d_keys_.ld);
   return loss;
 }
 
