@@ -1062,7 +1062,6 @@ void SinkhornFrame(KernelIsa isa,
   double* log_nu = log_mu + rows_p;                 // cols
   double* z = log_nu + cols_p;                      // rows x cols couplings
   double zmax = alpha;
-  double zmin = alpha;
   bool finite = std::isfinite(alpha);
   for (int64_t i = 0; i < rows; ++i) {
     for (int64_t j = 0; j < cols; ++j) {
@@ -1071,24 +1070,40 @@ void SinkhornFrame(KernelIsa isa,
                                : alpha;
       z[i * cols + j] = value;
       zmax = std::max(zmax, value);
-      zmin = std::min(zmin, value);
       finite = finite && std::isfinite(value);
     }
+  }
+  // The span leaves out the kernel's exact zeros (kSinkhornUnderflowNats).
+  const double underflow = zmax - kSinkhornUnderflowNats;
+  double zmin = alpha;
+  for (int64_t k = 0; k < rows * cols; ++k) {
+    if (z[k] >= underflow) zmin = std::min(zmin, z[k]);
   }
   const double norm = -std::log(static_cast<double>(n + l));
   for (int64_t i = 0; i < rows; ++i) log_mu[i] = norm;
   for (int64_t j = 0; j < cols; ++j) log_nu[j] = norm;
   log_mu[n] = std::log(static_cast<double>(l)) + norm;
   log_nu[l] = std::log(static_cast<double>(n)) + norm;
-  if (num_iters > 0 && finite && zmax - zmin <= 200.0) {
+  if (num_iters > 0 && finite && zmax - zmin <= kSinkhornScalingMaxSpan) {
     // Scaling form of the same iteration: a = exp(u + zmax), b = exp(v),
     // K = exp(z - zmax); u-update a_i = mu_i / (K b)_i, then v-update
-    // b_j = nu_j / (K^T a)_j. K's entries are >= e^-200, so no underflow.
+    // b_j = nu_j / (K^T a)_j. K's other entries are >= e^-200, so no
+    // underflow.
     std::fill(kernel, kernel + rows * cols_p, 0.0);
     for (int64_t i = 0; i < rows; ++i) {
-      for (int64_t j = 0; j < cols; ++j)
-        kernel[i * cols_p + j] = z[i * cols + j] - zmax;
-      ExpInPlace(isa, kernel + i * cols_p, cols);
+      double* kr = kernel + i * cols_p;
+      const double* zr = z + i * cols;
+      // -inf for the exact zeros: libm's exp takes a slow path (errno) on
+      // an argument that underflows, not on -inf.
+      for (int64_t j = 0; j < cols; ++j) {
+        kr[j] = zr[j] < underflow ? -std::numeric_limits<double>::infinity()
+                                  : zr[j] - zmax;
+      }
+      ExpInPlace(isa, kr, cols);
+      // The AVX-512 exp clamps its argument to e^-708: exact zeros.
+      for (int64_t j = 0; j < cols; ++j) {
+        if (zr[j] < underflow) kr[j] = 0.0;
+      }
     }
     std::fill(kernel_t, kernel_t + cols * rows_p, 0.0);
     for (int64_t i = 0; i < rows; ++i) {

@@ -225,12 +225,30 @@ void AttentionHead(KernelIsa isa,
                    int64_t ld_out,
                    AttentionScratch& scratch);
 
+/// Sinkhorn frames whose couplings span at most this many nats (max - min of
+/// the scores and alpha) use the exp-domain (scaling) form; wider or
+/// non-finite ones the log-domain (log-sum-exp) form (SinkhornFrame and the
+/// training loss's SinkhornLossFrame, fast_loss.h).
+constexpr double kSinkhornScalingMaxSpan = 200.0;
+
+/// Couplings more than this many nats below the largest are exact zeros of
+/// the exp-domain kernel (e^-745 is below the smallest double) and do not
+/// count in the span, so that a frame with padded label slots (score
+/// kPaddedSlotScore = -1e4, label_encoder.h) stays on the exp-domain path.
+/// The dustbin score alpha always counts, and every row and column holds it,
+/// so no row or column of the kernel is all zero; what the log-domain form
+/// would add for such an entry is below e^-545 of its row's and column's
+/// sums, under double rounding.
+constexpr double kSinkhornUnderflowNats = 745.0;
+
 /// Log-domain optimal transport with dustbins for one frame (REFERENCE 1.4),
 /// computed in double precision: `scores` is `n x l` (row stride
 /// `ld_scores`), alpha the dustbin score; writes the `(n+1) x (l+1)` log
 /// assignment (row-major, contiguous) to `out`. Uses the equivalent
-/// exp-domain (scaling) iteration when the couplings span less than 200
-/// nats, else log-sum-exp updates; both follow u-then-v updates from u=v=0.
+/// exp-domain (scaling) iteration when the couplings span at most
+/// kSinkhornScalingMaxSpan nats (not counting those kSinkhornUnderflowNats
+/// below the largest), else log-sum-exp updates; both follow u-then-v
+/// updates from u=v=0.
 void SinkhornFrame(KernelIsa isa,
                    const float* scores,
                    int64_t ld_scores,

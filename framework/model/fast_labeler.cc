@@ -65,6 +65,39 @@ PackedWeights Pack(const Affine& a) {
       w.data_ptr<float>(), b.data_ptr<float>(), w.size(0), w.size(1));
 }
 
+/// The layout-conditioned score head's point projection and its product with
+/// the held layout's label keys as one classifier (model=soma_any_layout): the
+/// torch forward computes S = s (F W_p^T + b_p) K with K = label_proj(E) the
+/// keys of the layout's label embeddings E and s = exp(log_scale) / sqrt(D);
+/// at inference the layout is fixed, so S = F (s K^T W_p)^T + s K^T b_p, one
+/// GEMM of L rows like the fixed head's classifier. Padded slots get w = 0
+/// and b = kPaddedSlotScore, the torch forward's masked_fill.
+Affine ConditionedClassifier(const LabelerImpl& model) {
+  SOMA_CHECK(!model.is_training())
+      << "FastLabeler: a layout-conditioned labeler must be in eval mode";
+  // Eval mode: the label branch's forward reads its parameters and running
+  // statistics and writes nothing, so the const snapshot holds.
+  auto& labeler = const_cast<LabelerImpl&>(model);
+  const LabelSlots slots = labeler.LayoutSlots();
+  const torch::Tensor mask = CheckLabelSlots(
+      slots, model.num_labels(), model.descriptor_width(), 1);  // 1 x L
+  const torch::Tensor embeddings = labeler.label_encoder(
+      slots.descriptors.to(torch::kFloat), mask);  // 1 x D x L
+  const torch::Tensor keys = labeler.label_head->label_proj(embeddings)
+                                 .squeeze(0)
+                                 .to(torch::kDouble);  // D x L
+  const double scale = std::exp(model.label_head->log_scale.item<double>()) /
+                       std::sqrt(static_cast<double>(model.options().d_model));
+  const Affine point_proj = ConvAffine(model.label_head->point_proj);
+  Affine classifier;
+  classifier.w = keys.t().matmul(point_proj.w) * scale;  // L x 2D
+  classifier.b = keys.t().matmul(point_proj.b) * scale;  // L
+  const torch::Tensor padded = mask.squeeze(0).logical_not();
+  classifier.w.index_put_({padded}, 0.0);
+  classifier.b.index_put_({padded}, kPaddedSlotScore);
+  return classifier;
+}
+
 /// A ResConv1DBlock as two GEMMs: first = [conv1+BN ; shortcut+BN] on the
 /// input (ReLU on the first `hidden` outputs), second = conv2+BN on the
 /// hidden part with the shortcut part as residual.
@@ -375,7 +408,8 @@ struct FastLabeler::Impl {
     }
 
     // Head: ReLU -> ResConv1DBlock(D -> 2D) -> ReLU -> classifier (1/sqrt(D)
-    // folded in).
+    // folded in; a layout-conditioned head's point projection and label keys
+    // are the classifier, ConditionedClassifier).
     for (int64_t i = 0; i < rows; ++i) {
       const float* src = x + i * ld_xb;
       float* dst = ws.u.data() + i * ld_u;
@@ -438,9 +472,19 @@ struct FastLabeler::Impl {
 };
 
 bool FastLabeler::Supports(const LabelerImpl& model) {
-  // A layout-conditioned labeler scores against label embeddings instead of
-  // the fixed `head` (docs/any_layout_design.md, "Fast engine").
-  if (model.head.is_empty()) return false;
+  // A layout-conditioned labeler scores against the embeddings of the layout
+  // it holds (ConditionedClassifier), with Sinkhorn; without a layout the
+  // torch forward gives the error.
+  if (model.conditioned()) {
+    if (model.label_head.is_empty() ||
+        dynamic_cast<const SinkhornImpl*>(model.normalization.get()) ==
+            nullptr ||
+        !model.layout_descriptors.ne(0).any().item<bool>()) {
+      return false;
+    }
+  } else if (model.head.is_empty()) {
+    return false;
+  }
   const bool backbone =
       dynamic_cast<const SelfAttentionImpl*>(model.backbone.get()) != nullptr ||
       dynamic_cast<const Conv1dBackboneImpl*>(model.backbone.get()) != nullptr;
@@ -485,10 +529,15 @@ FastLabeler::FastLabeler(const LabelerImpl& model,
       m.blocks.push_back(std::move(folded));
     }
   }
-  m.head = FoldResBlock(*model.head->block);
-  Affine classifier = ConvAffine(model.head->classifier);
-  classifier.w = classifier.w / std::sqrt(static_cast<double>(m.d));
-  m.classifier = Pack(classifier);
+  if (model.conditioned()) {
+    m.head = FoldResBlock(*model.label_head->block);
+    m.classifier = Pack(ConditionedClassifier(model));
+  } else {
+    m.head = FoldResBlock(*model.head->block);
+    Affine classifier = ConvAffine(model.head->classifier);
+    classifier.w = classifier.w / std::sqrt(static_cast<double>(m.d));
+    m.classifier = Pack(classifier);
+  }
   m.score_columns = m.classifier.rows;
   if (const auto* sinkhorn =
           dynamic_cast<const SinkhornImpl*>(model.normalization.get())) {

@@ -13,7 +13,10 @@
 //   input, then conv2 with the shortcut output added in the epilogue;
 // - attention heads use the same micro-kernel (keys packed per head, values
 //   read in place) with the softmax normalisation applied to P v;
-// - the 1/sqrt(D) score scaling is folded into the classifier;
+// - the 1/sqrt(D) score scaling is folded into the classifier; for the
+//   layout-conditioned labeler (model=soma_any_layout) the classifier is its
+//   score head's point projection times the keys of the layout it holds
+//   (the label branch runs once, in torch, when the snapshot is taken);
 // - the GEMMs run on a register-tiled AVX-512 micro-kernel against packed
 //   weights (portable fallback elsewhere), on point-major activations kept in
 //   reused, aligned buffers (no allocation per call after the first);
@@ -53,9 +56,12 @@ struct FastLabelerOptions {
 /// The folded, optimised inference model (see the file comment).
 class FastLabeler {
  public:
-  /// Snapshots `model`'s parameters and BatchNorm running statistics.
+  /// Snapshots `model`'s parameters and BatchNorm running statistics (and a
+  /// layout-conditioned labeler's held layout: after SetLayout, rebuild).
   /// Supports the `self_attention` and `conv1d` backbones and the `sinkhorn`
-  /// and `log_softmax` normalizations; throws InternalError otherwise.
+  /// and `log_softmax` normalizations, and the layout-conditioned labeler
+  /// in eval mode with Sinkhorn and a held layout; throws InternalError
+  /// otherwise.
   explicit FastLabeler(const LabelerImpl& model,
                        const FastLabelerOptions& options = {});
   ~FastLabeler();

@@ -496,7 +496,12 @@ double SinkhornLossFrame(const float* scores,
     for (int64_t i = 0; i < rows; ++i) {
       double* kr = kernel + i * cols_p;
       const double* zr = z + i * cols;
-      for (int64_t j = 0; j < cols; ++j) kr[j] = zr[j] - zmax;
+      // -inf for the exact zeros: libm's exp takes a slow path (errno) on
+      // an argument that underflows, not on -inf.
+      for (int64_t j = 0; j < cols; ++j) {
+        kr[j] = zr[j] < underflow ? -std::numeric_limits<double>::infinity()
+                                  : zr[j] - zmax;
+      }
       ExpInPlace(isa, kr, cols);
       // The AVX-512 exp clamps its argument to e^-708: exact zeros.
       for (int64_t j = 0; j < cols; ++j) {

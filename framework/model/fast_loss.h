@@ -18,21 +18,9 @@
 
 namespace soma::internal {
 
-/// Sinkhorn frames whose couplings span at most this many nats (max - min of
-/// the scores and alpha) use the exp-domain (scaling) form; wider or
-/// non-finite ones the log-domain (log-sum-exp) form. Same threshold as
-/// SinkhornFrame.
-constexpr double kSinkhornScalingMaxSpan = 200.0;
-
-/// SinkhornLossFrame: couplings more than this many nats below the largest
-/// are exact zeros of the exp-domain kernel (e^-745 is below the smallest
-/// double) and do not count in the span, so that a frame with padded label
-/// slots (score kPaddedSlotScore = -1e4, label_encoder.h) stays on the
-/// exp-domain path. The dustbin score alpha always counts, and every row and
-/// column holds it, so no row or column of the kernel is all zero; what the
-/// log-domain form would add for such an entry is below e^-545 of its row's
-/// and column's sums, under double rounding.
-constexpr double kSinkhornUnderflowNats = 745.0;
+// kSinkhornScalingMaxSpan and kSinkhornUnderflowNats (fast_kernels.h) choose
+// between SinkhornLossFrame's exp-domain and log-domain forms, as
+// SinkhornFrame's.
 
 /// Reusable per-thread scratch of the frame-loss kernels (grow-only: no
 /// allocation after the first frame of a given size). Not thread-safe; use

@@ -2,13 +2,16 @@
 // to 1e-4, for every supported architecture, kernel ISA and threading mode.
 #include "framework/model/fast_labeler.h"
 
+#include "framework/core/error.h"
 #include "framework/model/fast_kernels.h"
+#include "framework/model/label_encoder.h"
 #include "framework/model/labeler.h"
 #include "framework/model/torch_utils.h"
 
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include "tests/model/conditioned_labeler.h"
 #include <cmath>
 #include <limits>
 #include <vector>
@@ -169,6 +172,34 @@ TEST(FastLabeler, MatchesTorchAtThePaperConfiguration) {
   ExpectMatches(model, fast, points);
   EXPECT_EQ(fast.num_labels(), 41);
   EXPECT_TRUE(fast.has_dustbin_row());
+}
+
+TEST(FastLabeler, MatchesTorchForTheLayoutConditionedLabeler) {
+  // model=soma_any_layout: 9 label slots, a held layout of 6 labels (3
+  // padded slots), random parameters and statistics in the label branch too.
+  torch::manual_seed(15);
+  Labeler model = testing::SmallConditionedLabeler(9);
+  EXPECT_FALSE(FastLabeler::Supports(*model)) << "no layout held yet";
+  Randomize(*model, 0.4);
+  torch::Tensor descriptors =
+      torch::randn({6, testing::kConditionedDescriptorWidth});
+  model->SetLayout(descriptors);
+  model->train();
+  EXPECT_THROW(FastLabeler{*model}, InternalError) << "training mode";
+  model->eval();
+  ASSERT_TRUE(FastLabeler::Supports(*model));
+  const torch::Tensor points = MakePoints(4, 15);
+  for (KernelIsa isa : Isas()) {
+    FastLabelerOptions options;
+    options.isa = isa;
+    const FastLabeler fast(*model, options);
+    EXPECT_EQ(fast.num_labels(), 9);
+    ExpectMatches(model, fast, points);
+  }
+  // A full layout (no padded slot), and the snapshot follows SetLayout only
+  // when rebuilt.
+  model->SetLayout(torch::randn({9, testing::kConditionedDescriptorWidth}));
+  ExpectMatches(model, FastLabeler(*model), points);
 }
 
 TEST(FastLabeler, ThreadingModesAgree) {
@@ -334,13 +365,22 @@ TEST(FastKernels, AttentionProbsAndScoresGradMatchReference) {
 
 TEST(FastKernels, SinkhornScalingAndLogDomainAgree) {
   // Moderate scores take the scaling branch; a 300-nat spread forces the
-  // log-domain branch. Both must match LogOptimalTransport in double.
+  // log-domain branch; padded label slots (kPaddedSlotScore, a layout-
+  // conditioned labeller's) take the scaling branch with exact zeros in the
+  // kernel (kSinkhornUnderflowNats). All must match LogOptimalTransport in
+  // double.
   torch::manual_seed(18);
-  for (double spread : {3.0, 300.0}) {
+  for (double spread : {3.0, 300.0, -3.0}) {
+    const bool padded = spread < 0;
+    spread = std::abs(spread);
     const int64_t n = 9, l = 6;
     torch::Tensor scores = torch::randn({n, l}) * spread / 6.0;
     scores[0][0] = spread / 2;
     scores[1][1] = -spread / 2;
+    if (padded) {
+      scores.select(1, 2).fill_(kPaddedSlotScore);
+      scores.select(1, 5).fill_(kPaddedSlotScore);
+    }
     const torch::Tensor expected =
         LogOptimalTransport(scores.to(torch::kDouble).unsqueeze(0),
                             torch::tensor(0.4, torch::kDouble),
