@@ -1026,6 +1026,39 @@ void AttentionHead(KernelIsa isa,
              NumPanels(dh));
 }
 
+void SinkhornScalingKernel(KernelIsa isa,
+                           const double* z,
+                           int64_t rows,
+                           int64_t cols,
+                           int64_t rows_p,
+                           int64_t cols_p,
+                           double zmax,
+                           double* kernel,
+                           double* kernel_t) {
+  const double underflow = zmax - kSinkhornUnderflowNats;
+  std::fill(kernel, kernel + rows * cols_p, 0.0);
+  for (int64_t i = 0; i < rows; ++i) {
+    double* kr = kernel + i * cols_p;
+    const double* zr = z + i * cols;
+    // -inf for the exact zeros: libm's exp takes a slow path (errno) on an
+    // argument that underflows, not on -inf.
+    for (int64_t j = 0; j < cols; ++j) {
+      kr[j] = zr[j] < underflow ? -std::numeric_limits<double>::infinity()
+                                : zr[j] - zmax;
+    }
+    ExpInPlace(isa, kr, cols);
+    // The AVX-512 exp clamps its argument to e^-708: exact zeros.
+    for (int64_t j = 0; j < cols; ++j) {
+      if (zr[j] < underflow) kr[j] = 0.0;
+    }
+  }
+  std::fill(kernel_t, kernel_t + cols * rows_p, 0.0);
+  for (int64_t i = 0; i < rows; ++i) {
+    for (int64_t j = 0; j < cols; ++j)
+      kernel_t[j * rows_p + i] = kernel[i * cols_p + j];
+  }
+}
+
 void SinkhornFrame(KernelIsa isa,
                    const float* scores,
                    int64_t ld_scores,
@@ -1089,27 +1122,8 @@ void SinkhornFrame(KernelIsa isa,
     // K = exp(z - zmax); u-update a_i = mu_i / (K b)_i, then v-update
     // b_j = nu_j / (K^T a)_j. K's other entries are >= e^-200, so no
     // underflow.
-    std::fill(kernel, kernel + rows * cols_p, 0.0);
-    for (int64_t i = 0; i < rows; ++i) {
-      double* kr = kernel + i * cols_p;
-      const double* zr = z + i * cols;
-      // -inf for the exact zeros: libm's exp takes a slow path (errno) on
-      // an argument that underflows, not on -inf.
-      for (int64_t j = 0; j < cols; ++j) {
-        kr[j] = zr[j] < underflow ? -std::numeric_limits<double>::infinity()
-                                  : zr[j] - zmax;
-      }
-      ExpInPlace(isa, kr, cols);
-      // The AVX-512 exp clamps its argument to e^-708: exact zeros.
-      for (int64_t j = 0; j < cols; ++j) {
-        if (zr[j] < underflow) kr[j] = 0.0;
-      }
-    }
-    std::fill(kernel_t, kernel_t + cols * rows_p, 0.0);
-    for (int64_t i = 0; i < rows; ++i) {
-      for (int64_t j = 0; j < cols; ++j)
-        kernel_t[j * rows_p + i] = kernel[i * cols_p + j];
-    }
+    SinkhornScalingKernel(
+        isa, z, rows, cols, rows_p, cols_p, zmax, kernel, kernel_t);
     std::fill(mu, mu + rows_p, 0.0);
     std::fill(nu, nu + cols_p, 0.0);
     std::fill(a, a + rows_p, 0.0);

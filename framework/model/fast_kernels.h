@@ -241,6 +241,20 @@ constexpr double kSinkhornScalingMaxSpan = 200.0;
 /// sums, under double rounding.
 constexpr double kSinkhornUnderflowNats = 745.0;
 
+/// The exp-domain Sinkhorn kernel of couplings `z` (`rows x cols`,
+/// contiguous): `kernel` (`rows x cols_p`) = exp(z - zmax), exact zeros for
+/// couplings kSinkhornUnderflowNats below `zmax`, zero padding, and its
+/// transpose `kernel_t` (`cols x rows_p`).
+void SinkhornScalingKernel(KernelIsa isa,
+                           const double* z,
+                           int64_t rows,
+                           int64_t cols,
+                           int64_t rows_p,
+                           int64_t cols_p,
+                           double zmax,
+                           double* kernel,
+                           double* kernel_t);
+
 /// Log-domain optimal transport with dustbins for one frame (REFERENCE 1.4),
 /// computed in double precision: `scores` is `n x l` (row stride
 /// `ld_scores`), alpha the dustbin score; writes the `(n+1) x (l+1)` log

@@ -492,27 +492,8 @@ double SinkhornLossFrame(const float* scores,
   ScalingArgs sp;
   LogDomainArgs lp;
   if (scaling) {
-    std::fill(kernel, kernel + rows * cols_p, 0.0);
-    for (int64_t i = 0; i < rows; ++i) {
-      double* kr = kernel + i * cols_p;
-      const double* zr = z + i * cols;
-      // -inf for the exact zeros: libm's exp takes a slow path (errno) on
-      // an argument that underflows, not on -inf.
-      for (int64_t j = 0; j < cols; ++j) {
-        kr[j] = zr[j] < underflow ? -std::numeric_limits<double>::infinity()
-                                  : zr[j] - zmax;
-      }
-      ExpInPlace(isa, kr, cols);
-      // The AVX-512 exp clamps its argument to e^-708: exact zeros.
-      for (int64_t j = 0; j < cols; ++j) {
-        if (zr[j] < underflow) kr[j] = 0.0;
-      }
-    }
-    std::fill(kernel_t, kernel_t + cols * rows_p, 0.0);
-    for (int64_t i = 0; i < rows; ++i) {
-      for (int64_t j = 0; j < cols; ++j)
-        kernel_t[j * rows_p + i] = kernel[i * cols_p + j];
-    }
+    SinkhornScalingKernel(
+        isa, z, rows, cols, rows_p, cols_p, zmax, kernel, kernel_t);
     std::fill(mu, mu + rows_p, 0.0);
     std::fill(nu, nu + cols_p, 0.0);
     for (int64_t i = 0; i < rows; ++i) mu[i] = std::exp(log_mu[i]);
