@@ -49,6 +49,7 @@
 #include "framework/stream/stream_labeler.h"
 #include "framework/stream/stream_recorder.h"
 #include "framework/tasks/components.h"
+#include "framework/tasks/label_layout.h"
 #include "framework/tasks/task.h"
 #include "framework/train/model_zoo.h"
 #include "framework/train/trainer.h"
@@ -56,6 +57,7 @@
 #include <fmt/format.h>
 
 #include <filesystem>
+#include <optional>
 #include <sstream>
 
 namespace soma {
@@ -218,8 +220,17 @@ class StreamTask : public Task {
           ChooseInstalledModel(CaptureSummary{}, options_.model)
               .model.checkpoint.string();
     }
-    const CheckpointInfo info = ReadCheckpointInfo(options_.checkpoint);
+    CheckpointInfo info = ReadCheckpointInfo(options_.checkpoint);
     Labeler model = LoadLabelerFromCheckpoint(options_.checkpoint);
+    // A layout-conditioned checkpoint labels the layout given at label time
+    // (`layout=...`, framework/tasks/label_layout.h), as in `soma label`;
+    // the labeller snapshots it, so it is set first.
+    if (const std::optional<LabelTimeLayout> label_layout =
+            ResolveLabelTimeLayout(
+                cfg, ctx.overrides, info, options_.checkpoint, model, build)) {
+      model->SetLayout(label_layout->descriptors);
+      info.labels = label_layout->labels;
+    }
     StreamLabeler labeler(model.ptr(), options_.labeler);
     const int null = labeler.num_labels();
 

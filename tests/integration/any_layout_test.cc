@@ -261,6 +261,40 @@ TEST(AnyLayout, LabelsWithALayoutGivenAtLabelTime) {
       ReadC3d(dir / "eval" / "per_frame" / "cmu_01_01_f0-599_labeled.c3d");
   EXPECT_EQ(evaluated.labels[0], MakeBuiltinLayout(body, "cmu41").Labels()[0]);
 
+  // `soma stream` with a layout given at label time: the live labels are
+  // that layout's, on the optimised forward (the layout's label keys folded
+  // into its classifier).
+  ASSERT_EQ(testing::RunSomaTask(
+                dir,
+                {"stream",
+                 "hydra.run.dir=stream",
+                 "task.c3d.path=" + clip.string(),
+                 "task.c3d.realtime=false",
+                 "task.c3d.max_frames=40",
+                 "task.checkpoint=" +
+                     (dir / "sampled" / "checkpoints/best.pt").string(),
+                 "layout=cmu41"},
+                &err),
+            0)
+      << err;
+  const std::string stream_log = ReadFile(dir / "stream" / "soma.log");
+  EXPECT_EQ(CountOccurrences(stream_log,
+                             "label: layout 'cmu41' (41 labels, given at "
+                             "label time)"),
+            1);
+  EXPECT_EQ(CountOccurrences(stream_log, "-> 60 labels (fast path"), 1);
+  const C3dData streamed =
+      ReadC3d(dir / "stream" / "cmu_01_01_f0-599_labeled.c3d");
+  EXPECT_EQ(streamed.num_frames, 40);
+  const std::vector<std::string> cmu41 =
+      MakeBuiltinLayout(body, "cmu41").Labels();
+  ASSERT_GE(streamed.labels.size(), cmu41.size());
+  EXPECT_EQ(
+      std::vector<std::string>(
+          streamed.labels.begin(),
+          streamed.labels.begin() + static_cast<std::ptrdiff_t>(cmu41.size())),
+      cmu41);
+
   // A layout larger than the model's slots: one line, non-zero, both counts.
   EXPECT_NE(label("big", dir / "sampled", "layout=superset89", &err), 0);
   EXPECT_THAT(err,
