@@ -263,6 +263,24 @@ TEST(ResultsTest, ReadmeQuotesTable5AtTheHeadlineBudgetAsItsReportSaysIt) {
   }
 }
 
+TEST(ResultsTest, ReadmeQuotesTable1AtTheHeadlineBudgetAsItsReportSaysIt) {
+  const std::string readme = Readme();
+  const std::string csv = "results/headline_budget/table1.csv";
+  // The B+C+G test column (SOMA's protocol), one training noise per row
+  // ("\\+": a regex).
+  for (const auto& [words, variant] :
+       std::vector<std::pair<std::string, std::string>>{
+           {"train B ", "train_b"},
+           {"train B\\+C ", "train_b_c"},
+           {"train B\\+G ", "train_b_g"},
+           {"train B\\+C\\+G ", "train_b_c_g"}}) {
+    EXPECT_THAT(readme,
+                MatchesSomewhere(
+                    words + Cell(csv, variant, "b_c_g", "acc", 2, false) + "%"))
+        << variant;
+  }
+}
+
 TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
   const std::string readme = ResultsReadme();
   for (const std::string dir : {"results/", "results/hdm05_layout/"}) {
