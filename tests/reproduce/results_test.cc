@@ -141,9 +141,10 @@ std::string Cell(const std::string& csv,
 /// Line breaks and runs of spaces in both count as one space.
 MATCHER_P(MatchesSomewhere, pattern, "has a match for /" + pattern + "/") {
   const std::regex space(R"(\s+)");
-  return std::regex_search(
-      std::regex_replace(std::string(arg), space, " "),
-      std::regex(std::regex_replace(std::string(pattern), space, " ")));
+  const std::string& text = arg;
+  const std::string& wanted = pattern;
+  const std::regex regex(std::regex_replace(wanted, space, " "));
+  return std::regex_search(std::regex_replace(text, space, " "), regex);
 }
 
 std::string Readme() { return ReadFile(testing::SourceDir() / "README.md"); }
