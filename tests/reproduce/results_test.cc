@@ -284,7 +284,8 @@ TEST(ResultsTest, ReadmeQuotesTable1AtTheHeadlineBudgetAsItsReportSaysIt) {
 
 TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
   const std::string readme = ResultsReadme();
-  for (const std::string dir : {"results/", "results/hdm05_layout/"}) {
+  for (const std::string dir :
+       {"results/", "results/hdm05_layout/", "results/headline_budget/"}) {
     const std::string c1 = dir + "fig_c1.csv";
     EXPECT_THAT(
         readme,
