@@ -479,7 +479,7 @@ bool FastLabeler::Supports(const LabelerImpl& model) {
     if (model.label_head.is_empty() ||
         dynamic_cast<const SinkhornImpl*>(model.normalization.get()) ==
             nullptr ||
-        !model.layout_descriptors.ne(0).any().item<bool>()) {
+        !model.HoldsLayout()) {
       return false;
     }
   } else if (model.head.is_empty()) {

@@ -135,16 +135,20 @@ LabelerOutput LabelerImpl::forward(const torch::Tensor& points,
   return Run(points, &slots, return_attention);
 }
 
+bool LabelerImpl::HoldsLayout() const {
+  return options_.conditioned && layout_descriptors.ne(0).any().item<bool>();
+}
+
 LabelSlots LabelerImpl::LayoutSlots() const {
   // A slot whose descriptor row is all zero is padded (a real descriptor
   // holds a unit normal): a layout with fewer labels than the model's slots.
-  const torch::Tensor present = layout_descriptors.ne(0).any(1);
-  if (!present.any().item<bool>()) {
+  if (!HoldsLayout()) {
     throw ConfigError(
         "model=soma_any_layout: no layout to label with (Labeler::SetLayout "
         "was not called and the checkpoint holds none: a model trained on "
         "sampled layouts labels the layout it is given, e.g. layout=cmu41)");
   }
+  const torch::Tensor present = layout_descriptors.ne(0).any(1);
   return LabelSlots{
       layout_descriptors.unsqueeze(0),
       present.all().item<bool>() ? torch::Tensor() : present.unsqueeze(0)};

@@ -110,6 +110,9 @@ class LabelerImpl : public torch::nn::Module {
   /// Q` descriptors, the mask undefined when every slot holds a label.
   /// ConfigError when there is none.
   LabelSlots LayoutSlots() const;
+  /// True when a layout is held (SetLayout or loaded): some slot's
+  /// descriptor row is not all zero. Always false for a fixed-head model.
+  bool HoldsLayout() const;
   /// A conditioned labeler's scores `B x N x L` from the point side
   /// (`label_head->PointKeys(features)`, `B x D x N`) and `slots`: checks the
   /// slots, embeds the labels (label_encoder) and matches them

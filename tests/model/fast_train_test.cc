@@ -24,6 +24,7 @@
 
 #include "tests/model/conditioned_labeler.h"
 #include <cstdio>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -629,8 +630,8 @@ TEST(FastTrain, PaperSizeModelGradientsMatchAutograd) {
   // a given build's instance about one time in five (seeds 8-13 measured).
   constexpr int kSeeds = 3;
   for (KernelIsa isa : Isas()) {
-    std::vector<double> errors;
-    for (int seed = 8; seed < 8 + kSeeds; ++seed) {
+    double best = std::numeric_limits<double>::infinity();
+    for (int seed = 8; seed < 8 + kSeeds && best >= kTol; ++seed) {
       torch::manual_seed(seed);
       double error = 0;
       CheckWholeModel(125,
@@ -649,12 +650,11 @@ TEST(FastTrain, PaperSizeModelGradientsMatchAutograd) {
                       &error);
       std::printf(
           "  seed %d: worst relative gradient error %.3g\n", seed, error);
-      errors.push_back(error);
-      if (error < kTol) break;
+      best = std::min(best, error);
     }
-    EXPECT_LT(*std::min_element(errors.begin(), errors.end()), kTol)
-        << "no paper-size instance within " << kTol
-        << " of float64 autograd (ISA " << static_cast<int>(isa) << ")";
+    EXPECT_LT(best, kTol) << "no paper-size instance within " << kTol
+                          << " of float64 autograd (ISA "
+                          << static_cast<int>(isa) << ")";
   }
 }
 

@@ -243,43 +243,45 @@ TEST(ResultsTest, ReadmeQuotesTable5AsItsReportsSayIt) {
           Cell("results/hdm05_layout/fig_c1.csv", "layers_4", "hdm05")));
 }
 
+/// The README quotes `<words><mean>%` (two decimals, no spread) for each
+/// (words, variant) of `test`'s accuracy in `csv`; `words` is a regex.
+void ExpectReadmeQuotesAccuracies(
+    const std::string& csv,
+    const std::string& test,
+    const std::vector<std::pair<std::string, std::string>>& quotes) {
+  const std::string readme = Readme();
+  for (const auto& [words, variant] : quotes) {
+    EXPECT_THAT(readme,
+                MatchesSomewhere(
+                    words + Cell(csv, variant, test, "acc", 2, false) + "%"))
+        << csv << ": " << variant;
+  }
+}
+
 // Table 5 at the headline budget on the fitted layout
 // (results/headline_budget/): the README quotes each row's HDM05 accuracy as
 // the report's CSV has it.
 TEST(ResultsTest, ReadmeQuotesTable5AtTheHeadlineBudgetAsItsReportSaysIt) {
-  const std::string readme = Readme();
-  const std::string csv = "results/headline_budget/table5.csv";
-  for (const auto& [words, variant] :
-       std::vector<std::pair<std::string, std::string>>{
-           {"base ", "base"},
-           {"real-marker noise ", "real_noise"},
-           {"shape variation ", "no_shape_variation"},
-           {"Log-Softmax ", "log_softmax"},
-           {"random marker placement ", "no_marker_placement"},
-           {"transformer ", "no_transformer"}}) {
-    EXPECT_THAT(readme,
-                MatchesSomewhere(
-                    words + Cell(csv, variant, "hdm05", "acc", 2, false) + "%"))
-        << variant;
-  }
+  ExpectReadmeQuotesAccuracies(
+      "results/headline_budget/table5.csv",
+      "hdm05",
+      {{"base ", "base"},
+       {"real-marker noise ", "real_noise"},
+       {"shape variation ", "no_shape_variation"},
+       {"Log-Softmax ", "log_softmax"},
+       {"random marker placement ", "no_marker_placement"},
+       {"transformer ", "no_transformer"}});
 }
 
+// Table 1 at the same budget: the B+C+G test column (SOMA's protocol), one
+// training noise per row.
 TEST(ResultsTest, ReadmeQuotesTable1AtTheHeadlineBudgetAsItsReportSaysIt) {
-  const std::string readme = Readme();
-  const std::string csv = "results/headline_budget/table1.csv";
-  // The B+C+G test column (SOMA's protocol), one training noise per row
-  // ("\\+": a regex).
-  for (const auto& [words, variant] :
-       std::vector<std::pair<std::string, std::string>>{
-           {"train B ", "train_b"},
-           {"train B\\+C ", "train_b_c"},
-           {"train B\\+G ", "train_b_g"},
-           {"train B\\+C\\+G ", "train_b_c_g"}}) {
-    EXPECT_THAT(readme,
-                MatchesSomewhere(
-                    words + Cell(csv, variant, "b_c_g", "acc", 2, false) + "%"))
-        << variant;
-  }
+  ExpectReadmeQuotesAccuracies("results/headline_budget/table1.csv",
+                               "b_c_g",
+                               {{"train B ", "train_b"},
+                                {"train B\\+C ", "train_b_c"},
+                                {"train B\\+G ", "train_b_g"},
+                                {"train B\\+C\\+G ", "train_b_c_g"}});
 }
 
 TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
