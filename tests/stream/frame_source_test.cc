@@ -15,6 +15,7 @@
 #include <chrono>
 #include <future>
 #include <thread>
+#include <vector>
 
 namespace soma {
 namespace {
@@ -89,17 +90,26 @@ TEST(TcpFrameSource, ClientClosingWithoutReadingRepliesEndsTheStream) {
     c.Close();  // no reply read
   });
   s.client.get();  // the client is gone before any reply
+  // Every frame is read before the first reply: data reaching a socket its
+  // owner closed makes the client's kernel abort the connection with a
+  // reset, dropping whatever of these 41 KB it had not yet sent, so replying
+  // earlier makes the frame count a race, not a property of the source.
+  std::vector<int64_t> numbers;
   StreamFrame frame;
-  int frames = 0;
-  while (s.source.Next(&frame)) {
+  for (int i = 0; i < 50; ++i) {
+    ASSERT_TRUE(s.source.Next(&frame)) << "frame " << i + 1;
+    numbers.push_back(frame.number);
+  }
+  for (const int64_t number : numbers) {
     LabelPacket reply;
-    reply.number = frame.number;
+    reply.number = number;
     reply.label_ids.assign(40, 0);
     reply.confidences.assign(40, 1.0f);
     EXPECT_NO_THROW(s.source.Reply(reply));
-    ++frames;
   }
-  EXPECT_EQ(frames, 50);
+  EXPECT_FALSE(s.source.Next(&frame));  // closed between frames: the end
+  EXPECT_EQ(numbers.front(), 1);
+  EXPECT_EQ(numbers.back(), 50);
 }
 
 TEST(TcpFrameSource, DisconnectInsideAFrameIsAnErrorAfterTheFullFrames) {
