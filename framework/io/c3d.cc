@@ -4,6 +4,7 @@
 #include "framework/core/file.h"
 #include "framework/core/logging.h"
 #include "framework/io/line_error.h"
+#include "framework/io/marker_labels.h"
 
 #include <fmt/format.h>
 
@@ -16,6 +17,7 @@
 #include <limits>
 #include <map>
 #include <optional>
+#include <set>
 
 namespace soma {
 namespace {
@@ -978,6 +980,30 @@ const C3dParameter* C3dData::FindParameter(std::string_view group,
 
 double C3dData::MetresPerUnit() const {
   return UnitScaleToMetres(units.empty() ? std::string_view("mm") : units);
+}
+
+std::vector<bool> NonPositionColumns(const C3dData& c3d) {
+  std::set<std::string> outputs;
+  for (const char* name :
+       {"ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS"}) {
+    const C3dParameter* p = c3d.FindParameter("POINT", name);
+    if (p == nullptr || p->type != C3dParameterType::kChar) continue;
+    for (const std::string& label : p->AsStrings()) outputs.insert(label);
+  }
+  std::vector<bool> is_output(static_cast<size_t>(c3d.num_points), false);
+  for (size_t k = 0; k < is_output.size() && k < c3d.labels.size(); ++k) {
+    is_output[k] = outputs.count(c3d.labels[k]) > 0;
+  }
+  return is_output;
+}
+
+std::vector<bool> ModelOutputColumns(const C3dData& c3d) {
+  std::vector<bool> is_output = NonPositionColumns(c3d);
+  const std::vector<bool> is_virtual = PlugInGaitVirtualPoints(c3d.labels);
+  for (size_t k = 0; k < is_output.size() && k < is_virtual.size(); ++k) {
+    if (is_virtual[k]) is_output[k] = true;
+  }
+  return is_output;
 }
 
 C3dData ParseC3d(std::span<const uint8_t> bytes,

@@ -222,6 +222,18 @@ struct C3dData {
   }
 };
 
+/// Which point columns of `c3d` are model outputs that are no positions: the
+/// labels listed in POINT:ANGLES, FORCES, MOMENTS, POWERS, SCALARS and
+/// REACTIONS (Vicon Nexus stores Plug-in Gait's angles, forces ... as
+/// points). One flag per point (`num_points`).
+std::vector<bool> NonPositionColumns(const C3dData& c3d);
+
+/// Which point columns of `c3d` are model outputs rather than markers:
+/// NonPositionColumns, and Plug-in Gait's virtual points (segment axes,
+/// centre of mass: PlugInGaitVirtualPoints of marker_labels.h), positions
+/// the model computed that no camera saw. One flag per point.
+std::vector<bool> ModelOutputColumns(const C3dData& c3d);
+
 /// How to read a C3D file.
 struct C3dReadOptions {
   /// A file whose data section ends before the declared last frame: false →

@@ -234,23 +234,17 @@ int NearestSurfacePoint(const Eigen::Vector3d& point,
 }
 
 // The marker columns of a capture: labelled points that are not model
-// outputs (labels listed in POINT:ANGLES, FORCES, MOMENTS, POWERS, SCALARS,
-// REACTIONS) nor unlabelled (`*k`); frames in metres, NaN = missing.
+// outputs (ModelOutputColumns: Plug-in Gait's angles, forces ... and virtual
+// points) nor unlabelled (`*k`); frames in metres, NaN = missing.
 void CaptureMarkerColumns(const C3dData& c3d,
                           std::vector<std::string>* labels,
                           std::vector<Eigen::Matrix3Xd>* frames) {
-  std::set<std::string> outputs;
-  for (const char* name :
-       {"ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS"}) {
-    const C3dParameter* p = c3d.FindParameter("POINT", name);
-    if (p == nullptr || p->type != C3dParameterType::kChar) continue;
-    for (const std::string& label : p->AsStrings()) outputs.insert(label);
-  }
+  const std::vector<bool> is_output = ModelOutputColumns(c3d);
   std::vector<int> columns;
   for (int p = 0; p < c3d.num_points; ++p) {
     const std::string& label = c3d.labels[p];
     const std::string_view name = StripSubjectPrefix(label);
-    if (name.empty() || name[0] == '*' || outputs.count(label) > 0) continue;
+    if (name.empty() || name[0] == '*' || is_output[p]) continue;
     columns.push_back(p);
     labels->push_back(label);
   }

@@ -142,8 +142,8 @@ struct CaptureLayoutResult {
 };
 
 /// The marker columns of a capture: labelled points that are neither model
-/// outputs (labels listed in POINT:ANGLES, FORCES, MOMENTS, POWERS,
-/// SCALARS, REACTIONS) nor unlabelled (`*k`); `labels` as in the file,
+/// outputs (ModelOutputColumns of io/c3d.h: POINT:ANGLES ... and Plug-in
+/// Gait's virtual points) nor unlabelled (`*k`); `labels` as in the file,
 /// `frames` one 3 x columns matrix per frame in metres, NaN = missing.
 void CaptureMarkerColumns(const C3dData& c3d,
                           std::vector<std::string>* labels,

@@ -18,9 +18,30 @@
 #include "framework/tasks/task.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
+
+#include <string_view>
+#include <vector>
 
 namespace soma {
 namespace {
+
+// Names the Plug-in Gait virtual points CaptureMarkerColumns left out: the
+// model computed them, no camera saw them, so they get no place in a layout.
+void LogVirtualPoints(const C3dData& c3d) {
+  const std::vector<bool> is_virtual = PlugInGaitVirtualPoints(c3d.labels);
+  std::vector<std::string_view> names;
+  for (size_t k = 0; k < is_virtual.size(); ++k) {
+    if (is_virtual[k]) names.push_back(StripSubjectPrefix(c3d.labels[k]));
+  }
+  if (names.empty()) return;
+  SOMA_LOG(INFO,
+           "fit_layout: {} of the capture's points are Plug-in Gait's virtual "
+           "points (segment axes, centre of mass), model outputs rather than "
+           "markers, and are left out: {}",
+           names.size(),
+           fmt::join(names, " "));
+}
 
 struct FitLayoutOptions {
   std::string input;
@@ -45,6 +66,7 @@ class FitLayoutTask : public Task {
     std::vector<std::string> labels;
     std::vector<Eigen::Matrix3Xd> frames;
     CaptureMarkerColumns(c3d, &labels, &frames);
+    LogVirtualPoints(c3d);
     if (labels.empty() || frames.empty()) {
       throw IoError(fmt::format(
           "{}: no labelled marker (of {} points, {} frames); fit_layout needs "

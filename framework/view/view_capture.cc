@@ -60,30 +60,11 @@ bool IsPresent(const C3dData& c3d, int t, int k) {
   return p.allFinite() && !(p.array() == 0.0f).all();
 }
 
-/// Columns that are model outputs but no positions: the labels listed in
-/// POINT:ANGLES, FORCES, MOMENTS, POWERS, SCALARS and REACTIONS (Vicon
-/// Nexus / Plug-in Gait files store joint angles, forces ... as points).
-std::vector<bool> ModelOutputColumns(const C3dData& c3d) {
-  std::set<std::string> outputs;
-  for (const char* name :
-       {"ANGLES", "FORCES", "MOMENTS", "POWERS", "SCALARS", "REACTIONS"}) {
-    const C3dParameter* p = c3d.FindParameter("POINT", name);
-    if (p == nullptr || p->type != C3dParameterType::kChar) continue;
-    for (const std::string& label : p->AsStrings()) outputs.insert(label);
-  }
-  std::vector<bool> is_output(c3d.num_points, false);
-  for (int k = 0; k < c3d.num_points; ++k) {
-    is_output[k] = k < static_cast<int>(c3d.labels.size()) &&
-                   outputs.count(c3d.labels[k]) > 0;
-  }
-  return is_output;
-}
-
 /// The label id of each C3D column (its class, registered in column order;
 /// -1 null), or kOutputColumn for the model outputs that are left out.
 constexpr int kOutputColumn = -2;
 std::vector<int> ColumnIds(const C3dData& c3d, LabelIds& ids) {
-  const std::vector<bool> is_output = ModelOutputColumns(c3d);
+  const std::vector<bool> is_output = NonPositionColumns(c3d);
   std::vector<int> column_ids(c3d.num_points, -1);
   for (int k = 0; k < c3d.num_points; ++k) {
     if (is_output[k]) {

@@ -637,6 +637,88 @@ C3dData MakeSynthetic(int frames, int points) {
   return d;
 }
 
+TEST(MarkerLabels, PlugInGaitVirtualPointsNeedTheirSegmentGroup) {
+  const std::vector<std::string> labels = {
+      "LFHD", "PELO", "PELA",      "PELL",         "PELP",
+      "LTOP", "LTOE", "subj:LFEO", "subj:LFEA ",   "subj:LFEL",
+      "RTIO", "RTIB", "LTIB",      "CentreOfMass", "HEDO",
+      "HEDA", "pelo", "XPELO",     "LXXO",         "CentreOfMassFloor"};
+  const std::vector<bool> flags = PlugInGaitVirtualPoints(labels);
+  ASSERT_EQ(flags.size(), labels.size());
+  std::vector<std::string> flagged;
+  for (size_t i = 0; i < labels.size(); ++i) {
+    if (flags[i]) flagged.emplace_back(StripSubjectPrefix(labels[i]));
+  }
+  // A segment with its origin and at least two more axes is the model's;
+  // LTOP alone, RTIO alone and HEDO + HEDA (one more axis) are kept.
+  EXPECT_EQ(flagged,
+            (std::vector<std::string>{"PELO",
+                                      "PELA",
+                                      "PELL",
+                                      "PELP",
+                                      "LFEO",
+                                      "LFEA",
+                                      "LFEL",
+                                      "CentreOfMass",
+                                      "CentreOfMassFloor"}));
+  EXPECT_TRUE(PlugInGaitVirtualPoints({}).empty());
+}
+
+TEST(C3dReader, PlugInGaitOutputsAreNotMarkers) {
+  // Vicon Nexus files: the Plug-in Gait model's angles, forces ... are listed
+  // in POINT:ANGLES etc.; its virtual points (19 segments x 4 axes, and the
+  // centre of mass and its floor projection where the model computed them)
+  // are listed nowhere.
+  struct Take {
+    const char* file;
+    int markers;   // what the capture's cameras saw
+    int virtuals;  // Plug-in Gait's virtual points
+  };
+  for (const Take& take : {Take{"PiG_Motion-FlatFoot-Hole.c3d", 35, 78},
+                           Take{"PiG_Calibration-FlatFoot-Full.c3d", 35, 76},
+                           Take{"Movement_trial.c3d", 39, 78}}) {
+    SCOPED_TRACE(take.file);
+    const C3dData d = ReadC3d(C3dDir() / take.file);
+    const std::vector<bool> non_position = NonPositionColumns(d);
+    const std::vector<bool> outputs = ModelOutputColumns(d);
+    const std::vector<bool> virtual_points = PlugInGaitVirtualPoints(d.labels);
+    ASSERT_EQ(outputs.size(), static_cast<size_t>(d.num_points));
+    int markers = 0;
+    int virtuals = 0;
+    std::set<std::string> kept;
+    for (int p = 0; p < d.num_points; ++p) {
+      EXPECT_EQ(outputs[p], non_position[p] || virtual_points[p]) << p;
+      EXPECT_FALSE(non_position[p] && virtual_points[p]) << d.labels[p];
+      virtuals += virtual_points[p] ? 1 : 0;
+      const std::string_view name = StripSubjectPrefix(d.labels[p]);
+      if (outputs[p] || name.empty() || name[0] == '*') continue;
+      ++markers;
+      kept.emplace(name);
+    }
+    EXPECT_EQ(virtuals, take.virtuals);
+    EXPECT_EQ(markers, take.markers);
+    for (const char* marker : {"LASI",
+                               "RPSI",
+                               "LTHI",
+                               "LKNE",
+                               "LTIB",
+                               "RANK",
+                               "RHEE",
+                               "LTOE",
+                               "C7",
+                               "CLAV",
+                               "LFIN",
+                               "RWRB"}) {
+      EXPECT_EQ(kept.count(marker), 1u) << marker;
+    }
+  }
+  for (const char* file : {"HDM_mm_01-02_03_120.c3d", "cmu_01_01.c3d"}) {
+    const C3dData d = ReadC3d(C3dDir() / file);
+    const std::vector<bool> outputs = ModelOutputColumns(d);
+    EXPECT_EQ(std::count(outputs.begin(), outputs.end(), true), 0) << file;
+  }
+}
+
 size_t DataOffset(const std::vector<uint8_t>& bytes) {
   return static_cast<size_t>(RawLeInt16(bytes, 16) - 1) * 512;
 }
