@@ -1,7 +1,8 @@
 // libFuzzer target for the C3D reader: ParseC3d on arbitrary bytes must
 // either return or throw soma::Error; never crash, hang or over-allocate.
 // When a parse succeeds, the result must be self-consistent and survive an
-// EncodeC3d → ParseC3d round trip (points and validity unchanged).
+// EncodeC3d → ParseC3d round trip (points and validity unchanged), and
+// ModelOutputColumns must flag each point once.
 //
 // Build: scripts/fuzz_c3d.sh (clang, -fsanitize=fuzzer,address,undefined).
 #include "framework/core/error.h"
@@ -82,6 +83,15 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     const soma::C3dData d = soma::ParseC3d(bytes, "fuzz");
     CheckInvariants(d);
     CheckRoundTrip(d);
+    // Which columns are model outputs (POINT:ANGLES..., Plug-in Gait's
+    // virtual points): one flag per point whatever the labels and groups.
+    const std::vector<bool> outputs = soma::ModelOutputColumns(d);
+    const std::vector<bool> non_position = soma::NonPositionColumns(d);
+    REQUIRE(outputs.size() == static_cast<size_t>(d.num_points));
+    REQUIRE(non_position.size() == outputs.size());
+    for (size_t k = 0; k < outputs.size(); ++k) {
+      REQUIRE(!non_position[k] || outputs[k]);
+    }
   } catch (const soma::Error&) {
   }
   try {
