@@ -325,7 +325,8 @@ TEST(CaptureLayout, MissingFarAndInnerPointsAreReportedNotPlaced) {
   const int frame = direct.frame;
   const auto column = [&](const std::string& label) {
     for (size_t c = 0; c < capture.labels.size(); ++c) {
-      if (StripSubjectPrefix(capture.labels[c]) == label) return int(c);
+      if (StripSubjectPrefix(capture.labels[c]) == label)
+        return static_cast<int>(c);
     }
     ADD_FAILURE() << label;
     return 0;
