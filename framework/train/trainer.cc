@@ -657,8 +657,26 @@ void LoadCheckpointWeights(const std::filesystem::path& path,
                            LabelerImpl& model) {
   torch::serialize::InputArchive archive = OpenCheckpoint(path);
   const CheckpointInfo info = ReadInfo(archive, path);
-  CheckCompatible(info, identity, path);
+  if (!model.conditioned()) {
+    CheckCompatible(info, identity, path);
+    LoadModelArchive(archive, path, model);
+    return;
+  }
+  // A layout-conditioned model's weights hold no layout: its labels are an
+  // input. Fine-tuning it on another layout (or sampler) compares the
+  // network's config only, and keeps this run's label slots.
+  CheckpointInfo network = info;
+  ModelIdentity run = identity;
+  for (ConfigNode* config : {&network.model_config, &run.model_config}) {
+    if (config->IsMap()) config->Erase("layout_sampler");
+  }
+  network.labels.clear();
+  run.labels.clear();
+  CheckCompatible(network, run, path);
+  const torch::Tensor layout = model.layout_descriptors.clone();
   LoadModelArchive(archive, path, model);
+  torch::NoGradGuard no_grad;
+  model.layout_descriptors.set_(layout);
 }
 
 Labeler LoadLabelerFromCheckpoint(const std::filesystem::path& path) {

@@ -195,7 +195,12 @@ void CheckCompatible(const CheckpointInfo& info,
                      const std::filesystem::path& path);
 
 /// Loads the weights (parameters and buffers) of a checkpoint into `model`
-/// after CheckCompatible.
+/// after CheckCompatible (fine-tuning, TrainerOptions::init_from). A
+/// layout-conditioned `model` (model=soma_any_layout) may start from a
+/// checkpoint of another layout or layout sampler: only the network's
+/// config is compared (not `layout_sampler`, not the label names), and the
+/// model keeps its own layout (`layout_descriptors`, the label slots of this
+/// run).
 void LoadCheckpointWeights(const std::filesystem::path& path,
                            const ModelIdentity& identity,
                            LabelerImpl& model);

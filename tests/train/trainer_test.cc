@@ -160,6 +160,15 @@ std::string DeterministicColumns(const std::filesystem::path& csv) {
   return out;
 }
 
+void ExpectSameParameters(const Labeler& a, const Labeler& b) {
+  const auto pa = a->named_parameters();
+  const auto pb = b->named_parameters();
+  ASSERT_EQ(pa.size(), pb.size());
+  for (size_t i = 0; i < pa.size(); ++i) {
+    EXPECT_TRUE(torch::equal(pa[i].value(), pb[i].value())) << pa[i].key();
+  }
+}
+
 void ExpectSameWeights(const Labeler& a, const Labeler& b) {
   const auto pa = a->named_parameters();
   const auto pb = b->named_parameters();
@@ -482,6 +491,63 @@ TEST_F(TrainerTest, ConditionedModelTrainsOnPerFrameSlots) {
       testing::ErrorMessage<ConfigError>([&] { fixed->Train(train, val); });
   EXPECT_NE(message.find("use model=soma_any_layout"), std::string::npos)
       << message;
+}
+
+TEST_F(TrainerTest, ConditionedModelFineTunesOnAnotherLayout) {
+  // Pre-training on sampled slots (its identity records a layout sampler,
+  // its labels are slot names) ...
+  LabeledFrames pre_frames = TinyFrames(64, 1);
+  LabeledFrames pre_val = TinyFrames(32, 2);
+  SlotTable table;
+  AddSlots(&pre_frames, &table);
+  AddSlots(&pre_val, &table);
+  table.rows.resize(table.rows.size() / 2);
+  table.names.resize(table.names.size() / 2);
+  table.row_layout.resize(table.row_layout.size() / 2);
+  InMemoryBatchSource pre_train(std::move(pre_frames), SlotNames(), true, 5);
+  InMemoryBatchSource pre_eval(std::move(pre_val), SlotNames(), false, 0);
+  pre_train.SetSlotTable(table);
+  pre_eval.SetSlotTable(table);
+  ConfigNode sampled = ConditionedConfig();
+  sampled.Set("layout_sampler", ParseYaml("name: mixed\n", "test"));
+  auto pre = MakeTrainer(Options(2), root_ / "pre", sampled, SlotNames());
+  pre->Train(pre_train, pre_eval);
+
+  // ... then fine-tuned on one fixed layout of six named markers: the
+  // network's weights come from the checkpoint, the layout stays the run's.
+  const int q = static_cast<int>(table.width);
+  const torch::Tensor layout =
+      torch::from_blob(table.rows.data(), {kLabels, q}, torch::kFloat).clone();
+  TrainerOptions options = Options(0);  // load and stop
+  options.init_from = (root_ / "pre" / "checkpoints" / "last.pt").string();
+  auto tuned =
+      MakeTrainer(options, root_ / "ft", ConditionedConfig(), Labels());
+  Labeler tuned_model = tuned->model();  // shares the trainer's network
+  tuned_model->SetLayout(layout);
+  tuned->Train(*train_, *val_);
+  ExpectSameParameters(pre->model(), tuned->model());
+  ASSERT_TRUE(tuned->model()->HoldsLayout());
+  const torch::Tensor held = tuned->model()->layout_descriptors;
+  ASSERT_EQ(held.size(0), kLabels);
+  EXPECT_TRUE(torch::equal(held, layout));
+
+  // And it trains on that layout from there.
+  options.max_epochs = 2;
+  auto trained =
+      MakeTrainer(options, root_ / "ft2", ConditionedConfig(), Labels());
+  Labeler trained_model = trained->model();
+  trained_model->SetLayout(layout);
+  const TrainSummary summary = trained->Train(*train_, *val_);
+  ASSERT_EQ(summary.history.size(), 2u) << summary.BriefReport();
+  EXPECT_TRUE(std::isfinite(summary.history.back().val_loss));
+
+  // Another network is still refused, naming the key.
+  ConfigNode wider = ConditionedConfig();
+  wider.at("model").Set("d_model", ParseYaml("24", "test"));
+  const std::string message = testing::ErrorMessage<ConfigError>([&] {
+    MakeTrainer(options, root_ / "ft3", wider, Labels())->Train(*train_, *val_);
+  });
+  EXPECT_NE(message.find("model.d_model"), std::string::npos) << message;
 }
 
 TEST(Adam, WeightDecayIsClassicL2) {

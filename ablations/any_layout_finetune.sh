@@ -1,0 +1,93 @@
+#!/bin/bash
+# Issue #25 item 3, fine-tuning: how many minutes of training on a new layout
+# close what is left of the gap between the layout-conditioned model and the
+# per-layout one. Starts from the conditioned models of `soma reproduce
+# any_layout` (variant any_layout: never trained on the test layouts), trains
+# each further on one test take's layout for E epochs (`train.init_from`, the
+# same budget otherwise), and scores it on that take exactly as the
+# reproduction does (the same corrupted take, `soma label` with the layout,
+# `soma eval`).
+#
+#   bash ablations/any_layout_finetune.sh [soma binary] [epochs="1 2 4"] [seeds="0 1 2"]
+#
+# Needs the finished any_layout reproduction (its models and test data under
+# results/reproduce/) and the fitted layouts (ablations/make_layouts.sh).
+# Runs go under results/reproduce/finetune/ (kept: a finished run is not
+# trained again); the table is results/any_layout_finetune.csv, one line per
+# target, seed and epoch count: the training minutes (the sum of the epochs'
+# wall time in metrics.csv) and the per-frame accuracy and F1 (mean over the
+# take's frames, from soma eval's metrics.yaml).
+set -euo pipefail
+SOMA=${1:-./build/soma}
+EPOCHS=${2:-1 2 4}
+SEEDS=${3:-0 1 2}
+BUDGET=(scale=cpu)
+RUNS=results/reproduce/finetune
+OUT=results/any_layout_finetune.csv
+
+models=(results/reproduce/models/model-soma_any_layout_synth-layout_sampler-mixed-*)
+if [[ ${#models[@]} -ne 1 || ! -d ${models[0]} ]]; then
+  echo "any_layout_finetune: expected one any_layout model directory" \
+    "(results/reproduce/models/model-soma_any_layout_synth-layout_sampler-mixed-*)," \
+    "found ${#models[@]}: run soma reproduce any_layout first" >&2
+  exit 1
+fi
+base=${models[0]}
+
+# target: name, take stem, layout file
+targets=("hdm05 HDM_mm_01-02_03_120 results/layouts/hdm05.json"
+  "pig PiG_Motion-FlatFoot-Hole results/layouts/pig.json")
+
+metric() {  # metric <metrics.yaml> <key>
+  awk -v k="$2:" '$1 == k { print $2 }' "$1"
+}
+
+tmp="$OUT.tmp"
+echo "target,seed,epochs,train_minutes,acc_mean,f1_mean,checkpoint" >"$tmp"
+for target in "${targets[@]}"; do
+  read -r name stem layout <<<"$target"
+  if [[ ! -f $layout ]]; then
+    echo "any_layout_finetune: $layout is missing: bash ablations/make_layouts.sh" >&2
+    exit 1
+  fi
+  layout_args=(layout=file "layout.path=$layout" layout.allow_unknown_labels=true)
+  take_dir=(results/reproduce/testdata/${stem}_OC_05_G_03_BT_00_seed0*/OC_05_G_03_BT_00)
+  if [[ ! -f ${take_dir[0]}/$stem.c3d ]]; then
+    echo "any_layout_finetune: no corrupted $stem under results/reproduce/testdata:" \
+      "run soma reproduce any_layout first" >&2
+    exit 1
+  fi
+  for seed in $SEEDS; do
+    init="$base/seed$seed/checkpoints/best.pt"
+    if [[ ! -f $init ]]; then
+      echo "any_layout_finetune: $init is missing (the any_layout run is not finished)" >&2
+      exit 1
+    fi
+    for epochs in $EPOCHS; do
+      run="$RUNS/$name/seed$seed/epochs$epochs"
+      if [[ ! -f $run/eval/metrics.yaml ]]; then
+        echo "fine-tune $name seed $seed: $epochs epochs"
+        mkdir -p "$run"
+        if ! "$SOMA" train "${BUDGET[@]}" model=soma_any_layout "${layout_args[@]}" \
+          "train.init_from=$init" "train.max_epochs=$epochs" "seed=$seed" threads=1 \
+          "hydra.run.dir=$run/train" >"$run/train.log" 2>&1; then
+          tail -3 "$run/train.log" >&2
+          echo "any_layout_finetune: training failed, log: $run/train.log" >&2
+          exit 1
+        fi
+        "$SOMA" label "task.input=${take_dir[0]}/$stem.c3d" \
+          "task.checkpoint=$run/train/checkpoints/best.pt" task.tracklet=false \
+          task.inference.seed=0 threads=1 "${layout_args[@]}" "hydra.run.dir=$run/label" >/dev/null
+        "$SOMA" eval "task.gt=${take_dir[0]}/$stem.h5" \
+          "task.rec=$run/label/${stem}_labeled.c3d" "hydra.run.dir=$run/eval" >/dev/null
+      fi
+      minutes=$(awk -F, 'NR == 1 { for (i = 1; i <= NF; ++i) if ($i == "wall_s") c = i }
+        NR > 1 { s += $c } END { printf "%.2f", s / 60 }' "$run/train/metrics.csv")
+      acc=$(metric "$run/eval/metrics.yaml" acc_mean)
+      f1=$(metric "$run/eval/metrics.yaml" f1_mean)
+      echo "$name,$seed,$epochs,$minutes,$acc,$f1,$run/train/checkpoints/best.pt" >>"$tmp"
+    done
+  done
+done
+mv "$tmp" "$OUT"
+echo "wrote $OUT"
