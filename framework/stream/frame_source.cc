@@ -8,6 +8,7 @@
 
 #include <fmt/format.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <thread>
@@ -50,6 +51,15 @@ void C3dReplaySource::Open(const std::vector<std::string>&) {
         options_.path,
         c3d_->frame_rate));
   }
+  outputs_ = ModelOutputColumns(*c3d_);
+  if (const auto n = std::count(outputs_.begin(), outputs_.end(), true)) {
+    SOMA_LOG(INFO,
+             "stream: {} of {}'s {} point columns are model outputs (Plug-in "
+             "Gait's angles, forces, virtual points ...): not replayed",
+             n,
+             options_.path,
+             c3d_->num_points);
+  }
   end_ = c3d_->num_frames;
   if (options_.max_frames >= 0) end_ = std::min(end_, options_.max_frames);
   next_ = 0;
@@ -82,7 +92,7 @@ bool C3dReplaySource::Next(StreamFrame* frame) {
   frame->residuals.clear();
   const int row = static_cast<int>(t);
   for (int k = 0; k < c3d_->num_points; ++k) {
-    if (!c3d_->valid(row, k)) continue;
+    if (outputs_[k] || !c3d_->valid(row, k)) continue;
     const Eigen::Vector3f p = c3d_->Point(row, k);
     frame->Add(k, p.x(), p.y(), p.z(), c3d_->residuals(row, k));
   }

@@ -71,7 +71,9 @@ struct C3dReplayOptions {
 /// Replays a C3D file: frame t is due at start + t / (rate * speed) and its
 /// arrival is that due time (realtime), or now (as fast as possible). Points
 /// keep the file's units; track ids are the column indices (a column is a
-/// trajectory).
+/// trajectory). Columns that are model outputs (ModelOutputColumns of
+/// io/c3d.h: Plug-in Gait's angles, forces, virtual points) are not replayed:
+/// no camera system streams them.
 class C3dReplaySource : public FrameSource {
  public:
   explicit C3dReplaySource(C3dReplayOptions options);
@@ -89,7 +91,8 @@ class C3dReplaySource : public FrameSource {
  private:
   C3dReplayOptions options_;
   std::unique_ptr<C3dData> c3d_;
-  int64_t next_ = 0;  // the next frame to return
+  std::vector<bool> outputs_;  // per column: a model output, not replayed
+  int64_t next_ = 0;           // the next frame to return
   int64_t end_ = 0;
   double start_ = 0.0;  // steady seconds of frame 0's due time
   double DueTime(int64_t t) const;

@@ -108,13 +108,15 @@ bool IsPresent(const C3dData& c3d, int t, int k) {
   return p.allFinite() && !(p.array() == 0.0f).all();
 }
 
-PackedPoints Pack(const C3dData& c3d) {
+// The present points of every frame but those of the columns flagged in
+// `skip` (model outputs).
+PackedPoints Pack(const C3dData& c3d, const std::vector<bool>& skip) {
   PackedPoints packed;
   packed.num_frames = c3d.num_frames;
   packed.columns.resize(c3d.num_frames);
   for (int t = 0; t < c3d.num_frames; ++t) {
     for (int k = 0; k < c3d.num_points; ++k) {
-      if (IsPresent(c3d, t, k)) packed.columns[t].push_back(k);
+      if (!skip[k] && IsPresent(c3d, t, k)) packed.columns[t].push_back(k);
     }
     packed.max_points =
         std::max(packed.max_points, static_cast<int>(packed.columns[t].size()));
@@ -185,7 +187,18 @@ class LabelTask : public Task {
                                 options_.input));
     }
     const double to_metres = c3d.MetresPerUnit();
-    const PackedPoints packed = Pack(c3d);
+    // Columns a capture program computed (Plug-in Gait's angles, forces,
+    // virtual points) are no optical points: not labelled, not written.
+    const std::vector<bool> outputs = ModelOutputColumns(c3d);
+    if (const auto n = std::count(outputs.begin(), outputs.end(), true)) {
+      SOMA_LOG(INFO,
+               "label: {} of the capture's {} point columns are model outputs "
+               "(POINT:ANGLES, FORCES ..., Plug-in Gait's virtual points), not "
+               "markers: left out",
+               n,
+               c3d.num_points);
+    }
+    const PackedPoints packed = Pack(c3d, outputs);
     if (packed.max_points == 0) {
       throw IoError(fmt::format("{}: no valid point in any of its {} frames",
                                 options_.input,

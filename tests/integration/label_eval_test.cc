@@ -300,6 +300,34 @@ TEST(LabelTask, TinyModelLabelsACorruptedTakeAndIsScored) {
     EXPECT_GE(acc, 0.0);
     EXPECT_LE(acc, 1.0);
   }
+  // A Vicon Nexus export: the Plug-in Gait model's angles, forces ... and
+  // virtual points are no optical points; only the 39 markers are labelled
+  // and written.
+  const fs::path nexus =
+      testing::SharedDataDir() / "c3d" / "Movement_trial.c3d";
+  ASSERT_EQ(testing::RunSomaTask(dir,
+                                 {"label",
+                                  "hydra.run.dir=label_nexus",
+                                  "task.input=" + nexus.string(),
+                                  "task.checkpoint=" + checkpoint},
+                                 &err),
+            0)
+      << err;
+  EXPECT_THAT(err, HasSubstr("are model outputs"));
+  const C3dData input = ReadC3d(nexus);
+  const std::vector<bool> outputs = ModelOutputColumns(input);
+  const C3dData labeled =
+      ReadC3d(dir / "label_nexus" / "Movement_trial_labeled.c3d");
+  ASSERT_EQ(labeled.num_frames, input.num_frames);
+  for (int t = 0; t < input.num_frames; ++t) {
+    int markers = 0;
+    for (int k = 0; k < input.num_points; ++k) {
+      const Eigen::Vector3f x = input.Point(t, k);
+      markers += !outputs[k] && input.valid(t, k) && !(x.array() == 0).all();
+    }
+    ASSERT_EQ(labeled.valid.row(t).count(), markers) << "frame " << t;
+  }
+
   // Appendix A on the same tiny model (one attention layer).
   ASSERT_EQ(
       testing::RunSomaTask(dir,

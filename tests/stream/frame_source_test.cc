@@ -260,6 +260,33 @@ TEST(C3dReplaySource, ReplaysColumnsAsTrajectories) {
   EXPECT_FALSE(source.Ready());
 }
 
+TEST(C3dReplaySource, ModelOutputsAreNotReplayed) {
+  // A Vicon Nexus export: 35 markers beside Plug-in Gait's angles, forces
+  // ... and its 78 virtual points. Only the markers stream.
+  C3dReplayOptions options;
+  options.path =
+      (testing::SharedDataDir() / "c3d" / "PiG_Motion-FlatFoot-Hole.c3d")
+          .string();
+  options.realtime = false;
+  options.max_frames = 20;
+  C3dReplaySource source(options);
+  source.Open({});
+  const C3dData c3d = ReadC3d(options.path);
+  const std::vector<bool> outputs = ModelOutputColumns(c3d);
+  StreamFrame frame;
+  int frames = 0;
+  while (source.Next(&frame)) {
+    const int row = frames++;
+    std::vector<int32_t> expected;
+    for (int k = 0; k < c3d.num_points; ++k) {
+      if (!outputs[k] && c3d.valid(row, k)) expected.push_back(k);
+    }
+    EXPECT_EQ(frame.track_ids, expected) << "frame " << row;
+    EXPECT_LE(frame.num_points(), 35);
+  }
+  EXPECT_EQ(frames, 20);
+}
+
 TEST(C3dReplaySource, RealtimeKeepsTheCaptureRate) {
   C3dReplayOptions options;
   options.path = SmallTake(testing::CreateTestDir()).string();
