@@ -33,9 +33,13 @@ TcpSourceOptions Local(double idle_timeout_s = 5) {
 StreamFrame Frame(int64_t number, int points) {
   StreamFrame frame;
   frame.number = number;
-  frame.timestamp = double(number) / 120;
+  frame.timestamp = static_cast<double>(number) / 120;
   for (int i = 0; i < points; ++i) {
-    frame.Add(i, 100.f * float(i + 1), float(number), 1000.f, 0.5f);
+    frame.Add(i,
+              100.f * static_cast<float>(i + 1),
+              static_cast<float>(number),
+              1000.f,
+              0.5f);
   }
   return frame;
 }
@@ -229,10 +233,11 @@ std::filesystem::path SmallTake(const std::filesystem::path& dir) {
   c3d.points.setZero(5, 9);
   c3d.residuals.setZero(5, 3);
   for (int t = 0; t < 5; ++t) {
-    for (int k = 0; k < 9; ++k) c3d.points(t, k) = float(10 * t + k + 1);
+    for (int k = 0; k < 9; ++k)
+      c3d.points(t, k) = static_cast<float>(10 * t + k + 1);
   }
   c3d.residuals(2, 1) = -1.0f;  // point b missing in frame 2
-  const std::filesystem::path path = dir / "take.c3d";
+  std::filesystem::path path = dir / "take.c3d";
   WriteC3d(path, c3d);
   return path;
 }
