@@ -459,19 +459,36 @@ std::vector<std::string> SlotNames() {
   return names;
 }
 
-TEST_F(TrainerTest, ConditionedModelTrainsOnPerFrameSlots) {
+// The tiny frames with per-frame label slots (AddSlots), as a training and a
+// validation source that share one slot table.
+struct SlottedSources {
+  SlotTable table;
+  std::unique_ptr<InMemoryBatchSource> train;
+  std::unique_ptr<InMemoryBatchSource> val;
+};
+
+SlottedSources MakeSlottedSources() {
   LabeledFrames train_frames = TinyFrames(64, 1);
   LabeledFrames val_frames = TinyFrames(32, 2);
-  SlotTable table;
-  AddSlots(&train_frames, &table);
-  AddSlots(&val_frames, &table);  // same table contents (appended twice)
-  table.rows.resize(table.rows.size() / 2);
-  table.names.resize(table.names.size() / 2);
-  table.row_layout.resize(table.row_layout.size() / 2);
-  InMemoryBatchSource train(std::move(train_frames), SlotNames(), true, 5);
-  InMemoryBatchSource val(std::move(val_frames), SlotNames(), false, 0);
-  train.SetSlotTable(table);
-  val.SetSlotTable(table);
+  SlottedSources out;
+  AddSlots(&train_frames, &out.table);
+  AddSlots(&val_frames, &out.table);  // same table contents (appended twice)
+  out.table.rows.resize(out.table.rows.size() / 2);
+  out.table.names.resize(out.table.names.size() / 2);
+  out.table.row_layout.resize(out.table.row_layout.size() / 2);
+  out.train = std::make_unique<InMemoryBatchSource>(
+      std::move(train_frames), SlotNames(), true, 5);
+  out.val = std::make_unique<InMemoryBatchSource>(
+      std::move(val_frames), SlotNames(), false, 0);
+  out.train->SetSlotTable(out.table);
+  out.val->SetSlotTable(out.table);
+  return out;
+}
+
+TEST_F(TrainerTest, ConditionedModelTrainsOnPerFrameSlots) {
+  const SlottedSources slotted = MakeSlottedSources();
+  InMemoryBatchSource& train = *slotted.train;
+  InMemoryBatchSource& val = *slotted.val;
   auto trainer =
       MakeTrainer(Options(15), root_, ConditionedConfig(), SlotNames(), 1e-2);
   ASSERT_TRUE(trainer->model()->conditioned());
@@ -496,28 +513,20 @@ TEST_F(TrainerTest, ConditionedModelTrainsOnPerFrameSlots) {
 TEST_F(TrainerTest, ConditionedModelFineTunesOnAnotherLayout) {
   // Pre-training on sampled slots (its identity records a layout sampler,
   // its labels are slot names) ...
-  LabeledFrames pre_frames = TinyFrames(64, 1);
-  LabeledFrames pre_val = TinyFrames(32, 2);
-  SlotTable table;
-  AddSlots(&pre_frames, &table);
-  AddSlots(&pre_val, &table);
-  table.rows.resize(table.rows.size() / 2);
-  table.names.resize(table.names.size() / 2);
-  table.row_layout.resize(table.row_layout.size() / 2);
-  InMemoryBatchSource pre_train(std::move(pre_frames), SlotNames(), true, 5);
-  InMemoryBatchSource pre_eval(std::move(pre_val), SlotNames(), false, 0);
-  pre_train.SetSlotTable(table);
-  pre_eval.SetSlotTable(table);
+  const SlottedSources slotted = MakeSlottedSources();
+  const SlotTable& table = slotted.table;
   ConfigNode sampled = ConditionedConfig();
   sampled.Set("layout_sampler", ParseYaml("name: mixed\n", "test"));
   auto pre = MakeTrainer(Options(2), root_ / "pre", sampled, SlotNames());
-  pre->Train(pre_train, pre_eval);
+  pre->Train(*slotted.train, *slotted.val);
 
   // ... then fine-tuned on one fixed layout of six named markers: the
   // network's weights come from the checkpoint, the layout stays the run's.
   const int q = static_cast<int>(table.width);
   const torch::Tensor layout =
-      torch::from_blob(table.rows.data(), {kLabels, q}, torch::kFloat).clone();
+      torch::tensor(std::vector<float>(table.rows.begin(),
+                                       table.rows.begin() + kLabels * q))
+          .reshape({kLabels, q});
   TrainerOptions options = Options(0);  // load and stop
   options.init_from = (root_ / "pre" / "checkpoints" / "last.pt").string();
   auto tuned =
