@@ -169,13 +169,9 @@ void ExpectSameParameters(const Labeler& a, const Labeler& b) {
   }
 }
 
+// Parameters and buffers.
 void ExpectSameWeights(const Labeler& a, const Labeler& b) {
-  const auto pa = a->named_parameters();
-  const auto pb = b->named_parameters();
-  ASSERT_EQ(pa.size(), pb.size());
-  for (size_t i = 0; i < pa.size(); ++i) {
-    EXPECT_TRUE(torch::equal(pa[i].value(), pb[i].value())) << pa[i].key();
-  }
+  ExpectSameParameters(a, b);
   const auto ba = a->named_buffers();
   const auto bb = b->named_buffers();
   ASSERT_EQ(ba.size(), bb.size());
