@@ -23,7 +23,24 @@
 # tests/fuzz/corpus/<target>/.
 #
 # SOMA_FUZZ_BUILD_DIR (default build-fuzz) and SOMA_FUZZ_JOBS (parallel build
-# jobs, default nproc) adjust the build.
+# jobs, default nproc) adjust the build. A long exploratory run (the 10 M
+# executions of the house issue) is set with:
+#   SOMA_FUZZ_RUNS=N        stop after N executions in all (seconds=0: no time
+#                           limit) instead of after the time alone
+#   SOMA_FUZZ_WORKERS=W     W fuzzing processes sharing one corpus (libFuzzer
+#                           -jobs/-workers), each running N/W executions; logs
+#                           in <build>/<target>_fuzz.<i>.log
+#   SOMA_FUZZ_MAX_LEN=L     the largest input (default per target, below)
+#   SOMA_FUZZ_TIMEOUT=T     seconds one input may take before it counts as a
+#                           hang (default 10; 120 with several workers, which
+#                           starve each other on few cores)
+#   SOMA_FUZZ_SANITIZE=s    the sanitizers besides libFuzzer's coverage
+#                           (default address,undefined; `undefined` alone runs
+#                           the config target ~2x faster); a non-default value
+#                           builds into build-fuzz-<s> unless
+#                           SOMA_FUZZ_BUILD_DIR says otherwise
+# e.g. SOMA_FUZZ_RUNS=10000000 SOMA_FUZZ_WORKERS=2 bash scripts/fuzz.sh override 0
+# The summary line gives the executions of all workers together.
 #
 # Exit 0: no finding, or clang/libFuzzer unavailable (skipped with a message).
 # Exit 1: a crash, leak, timeout or sanitizer report; the input is saved in
@@ -56,11 +73,40 @@ case "$target" in
     ;;
 esac
 seconds="${2:-60}"
+max_len="${SOMA_FUZZ_MAX_LEN:-$max_len}"
+runs="${SOMA_FUZZ_RUNS:-}"
+workers="${SOMA_FUZZ_WORKERS:-1}"
+sanitize="${SOMA_FUZZ_SANITIZE:-address,undefined}"
+if ((${SOMA_FUZZ_WORKERS:-1} > 1)); then default_timeout=120; else default_timeout=10; fi
+timeout="${SOMA_FUZZ_TIMEOUT:-$default_timeout}"
+for number in "$seconds" "$max_len" "$workers" "$timeout" ${runs:+"$runs"}; do
+  if [[ ! "$number" =~ ^[0-9]+$ ]]; then
+    echo "scripts/fuzz.sh: expected a non-negative integer, got '$number'" >&2
+    exit 2
+  fi
+done
+if ((workers < 1)); then
+  echo "scripts/fuzz.sh: SOMA_FUZZ_WORKERS must be at least 1, got $workers" >&2
+  exit 2
+fi
+if ((workers > 1)) && [[ -n "${3:-}" ]]; then
+  echo "scripts/fuzz.sh: a fixed seed with $workers workers would explore the same inputs" \
+    "$workers times; give no seed" >&2
+  exit 2
+fi
+if ((seconds == 0)) && [[ -z "$runs" ]]; then
+  echo "scripts/fuzz.sh: seconds=0 (no time limit) needs SOMA_FUZZ_RUNS" >&2
+  exit 2
+fi
 seed_flag=()
 if [[ -n "${3:-}" ]]; then
   seed_flag=(-seed="$3")
 fi
-build="${SOMA_FUZZ_BUILD_DIR:-build-fuzz}"
+default_build=build-fuzz
+if [[ "$sanitize" != "address,undefined" ]]; then
+  default_build="build-fuzz-${sanitize//,/-}"
+fi
+build="${SOMA_FUZZ_BUILD_DIR:-$default_build}"
 jobs="${SOMA_FUZZ_JOBS:-$(nproc)}"
 tag="[fuzz_${target}]"
 
@@ -72,7 +118,7 @@ probe="$(mktemp -d)"
 trap 'rm -rf "$probe"' EXIT
 echo 'extern "C" int LLVMFuzzerTestOneInput(const unsigned char*, unsigned long) { return 0; }' \
   >"$probe/probe.cc"
-if ! clang++ -fsanitize=fuzzer,address,undefined "$probe/probe.cc" -o "$probe/probe" \
+if ! clang++ -fsanitize="fuzzer,$sanitize" "$probe/probe.cc" -o "$probe/probe" \
   >/dev/null 2>&1; then
   echo "$tag libFuzzer runtime not available (Debian: libclang-rt-14-dev); skipping"
   exit 0
@@ -80,7 +126,8 @@ fi
 
 log="$probe/build.log"
 if ! CC=clang CXX=clang++ cmake -S . -B "$build" -DCMAKE_BUILD_TYPE=RelWithDebInfo \
-  -DSOMA_BUILD_TESTS=ON -DSOMA_BUILD_FUZZERS=ON >"$log" 2>&1 ||
+  -DSOMA_BUILD_TESTS=ON -DSOMA_BUILD_FUZZERS=ON -DSOMA_FUZZ_SANITIZE="$sanitize" \
+  >"$log" 2>&1 ||
   ! cmake --build "$build" --target "${target}_fuzzer" -j"$jobs" >>"$log" 2>&1; then
   tail -n 40 "$log"
   echo "$tag building the fuzzer failed"
@@ -112,15 +159,57 @@ if compgen -G "tests/fuzz/corpus/$target/*" >/dev/null; then
   cp tests/fuzz/corpus/"$target"/* "$seeds/"
 fi
 
-echo "$tag fuzzing ${what} for ${seconds}s${3:+ (seed $3)}"
-if ! "$build/tests/fuzz/${target}_fuzzer" "${seed_flag[@]}" -max_total_time="$seconds" \
-  -max_len="$max_len" -rss_limit_mb=2048 -timeout=10 -dict="tests/fuzz/${target}.dict" \
-  -artifact_prefix="$artifacts" -print_final_stats=1 "$corpus" "$seeds" \
-  >"$build/${target}_fuzz.log" 2>&1; then
-  grep -v '^#' "$build/${target}_fuzz.log" | tail -n 40
-  echo "$tag FINDING: see $artifacts and $build/${target}_fuzz.log"
+limits=()
+if ((seconds > 0)); then
+  limits+=(-max_total_time="$seconds")
+fi
+if [[ -n "$runs" ]]; then
+  limits+=(-runs="$(((runs + workers - 1) / workers))")
+fi
+log="$build/${target}_fuzz.log"
+echo "$tag fuzzing ${what} for ${seconds}s${runs:+ or $runs executions}${3:+ (seed $3)}" \
+  "($sanitize, max_len $max_len, $workers worker(s))"
+status=0
+if ((workers == 1)); then
+  "$build/tests/fuzz/${target}_fuzzer" "${seed_flag[@]}" "${limits[@]}" \
+    -max_len="$max_len" -rss_limit_mb=2048 -timeout="$timeout" -dict="tests/fuzz/${target}.dict" \
+    -artifact_prefix="$artifacts" -print_final_stats=1 "$corpus" "$seeds" >"$log" 2>&1 ||
+    status=1
+  logs=("$log")
+else
+  # libFuzzer writes fuzz-<i>.log into its working directory (the build
+  # directory here), so every path it is given is absolute.
+  root="$PWD"
+  abs() { if [[ "$1" = /* ]]; then echo "$1"; else echo "$root/$1"; fi; }
+  rm -f "$build/${target}"_fuzz.*.log "$build"/fuzz-*.log
+  (cd "$build" && "$(abs "$build/tests/fuzz/${target}_fuzzer")" "${seed_flag[@]}" \
+    "${limits[@]}" -jobs="$workers" -workers="$workers" -max_len="$max_len" \
+    -rss_limit_mb=2048 -timeout="$timeout" -dict="$(abs "tests/fuzz/${target}.dict")" \
+    -artifact_prefix="$(abs "$artifacts")" -print_final_stats=1 "$(abs "$corpus")" \
+    "$(abs "$seeds")" >"$(abs "$log")" 2>&1) || status=1
+  logs=()
+  for ((i = 0; i < workers; i++)); do
+    mv "$build/fuzz-$i.log" "$build/${target}_fuzz.$i.log" 2>/dev/null || true
+    logs+=("$build/${target}_fuzz.$i.log")
+  done
+fi
+# A worker's failure shows in its own log, not in the exit status of -jobs.
+if grep -lE '^==[0-9]+==ERROR|^SUMMARY: |runtime error:|invariant broken' "${logs[@]}" \
+  >/dev/null 2>&1; then
+  status=1
+fi
+if ((status != 0)); then
+  for l in "${logs[@]}"; do
+    [[ -e "$l" ]] && grep -v '^#' "$l" | tail -n 40
+  done
+  echo "$tag FINDING: see $artifacts and ${logs[*]}"
   exit 1
 fi
-grep -E '^#[0-9]+[[:space:]]+DONE|stat::number_of_executed_units' \
-  "$build/${target}_fuzz.log" || true
+total=0
+for l in "${logs[@]}"; do
+  n="$(grep -oE 'stat::number_of_executed_units: [0-9]+' "$l" | grep -oE '[0-9]+$' || echo 0)"
+  grep -E '^#[0-9]+[[:space:]]+DONE' "$l" || true
+  total=$((total + n))
+done
+echo "$tag stat::number_of_executed_units: $total"
 echo "$tag no crashes"
