@@ -31,6 +31,10 @@
 #                           -jobs/-workers), each running N/W executions; logs
 #                           in <build>/<target>_fuzz.<i>.log
 #   SOMA_FUZZ_MAX_LEN=L     the largest input (default per target, below)
+#   SOMA_FUZZ_RSS_LIMIT_MB=M  the memory (RSS) a fuzzer may hold before libFuzzer
+#                           reports it out of memory (default 2048; ASan's caches
+#                           grow by ~0.25 GB per million inputs of the override
+#                           target, so a 10 M run wants ~6144)
 #   SOMA_FUZZ_TIMEOUT=T     seconds one input may take before it counts as a
 #                           hang (default 10; 120 with several workers, which
 #                           starve each other on few cores)
@@ -79,7 +83,8 @@ workers="${SOMA_FUZZ_WORKERS:-1}"
 sanitize="${SOMA_FUZZ_SANITIZE:-address,undefined}"
 if ((${SOMA_FUZZ_WORKERS:-1} > 1)); then default_timeout=120; else default_timeout=10; fi
 timeout="${SOMA_FUZZ_TIMEOUT:-$default_timeout}"
-for number in "$seconds" "$max_len" "$workers" "$timeout" ${runs:+"$runs"}; do
+rss_limit="${SOMA_FUZZ_RSS_LIMIT_MB:-2048}"
+for number in "$seconds" "$max_len" "$workers" "$timeout" "$rss_limit" ${runs:+"$runs"}; do
   if [[ ! "$number" =~ ^[0-9]+$ ]]; then
     echo "scripts/fuzz.sh: expected a non-negative integer, got '$number'" >&2
     exit 2
@@ -172,7 +177,7 @@ echo "$tag fuzzing ${what} for ${seconds}s${runs:+ or $runs executions}${3:+ (se
 status=0
 if ((workers == 1)); then
   "$build/tests/fuzz/${target}_fuzzer" "${seed_flag[@]}" "${limits[@]}" \
-    -max_len="$max_len" -rss_limit_mb=2048 -timeout="$timeout" -dict="tests/fuzz/${target}.dict" \
+    -max_len="$max_len" -rss_limit_mb="$rss_limit" -timeout="$timeout" -dict="tests/fuzz/${target}.dict" \
     -artifact_prefix="$artifacts" -print_final_stats=1 "$corpus" "$seeds" >"$log" 2>&1 ||
     status=1
   logs=("$log")
@@ -184,7 +189,7 @@ else
   rm -f "$build/${target}"_fuzz.*.log "$build"/fuzz-*.log
   (cd "$build" && "$(abs "$build/tests/fuzz/${target}_fuzzer")" "${seed_flag[@]}" \
     "${limits[@]}" -jobs="$workers" -workers="$workers" -max_len="$max_len" \
-    -rss_limit_mb=2048 -timeout="$timeout" -dict="$(abs "tests/fuzz/${target}.dict")" \
+    -rss_limit_mb="$rss_limit" -timeout="$timeout" -dict="$(abs "tests/fuzz/${target}.dict")" \
     -artifact_prefix="$(abs "$artifacts")" -print_final_stats=1 "$(abs "$corpus")" \
     "$(abs "$seeds")" >"$(abs "$log")" 2>&1) || status=1
   logs=()
