@@ -32,9 +32,9 @@
 #                           in <build>/<target>_fuzz.<i>.log
 #   SOMA_FUZZ_MAX_LEN=L     the largest input (default per target, below)
 #   SOMA_FUZZ_RSS_LIMIT_MB=M  the memory (RSS) a fuzzer may hold before libFuzzer
-#                           reports it out of memory (default 2048; ASan's caches
-#                           grow by ~0.25 GB per million inputs of the override
-#                           target, so a 10 M run wants ~6144)
+#                           reports it out of memory (default 2048; in a run of
+#                           10 M inputs of the override target ASan's caches
+#                           held 1.3 GB, still growing when it ended)
 #   SOMA_FUZZ_TIMEOUT=T     seconds one input may take before it counts as a
 #                           hang (default 10; 120 with several workers, which
 #                           starve each other on few cores)

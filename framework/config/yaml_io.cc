@@ -223,21 +223,53 @@ class YamlConverter {
       case YAML::NodeType::Scalar:
         node = ConvertScalar(yaml, line);
         break;
-      case YAML::NodeType::Sequence:
+      case YAML::NodeType::Sequence: {
         CheckContainerTag(yaml, kTagSeq, line);
+        const OpenContainer open(this, yaml, fallback_line);
         node = ConfigNode::EmptyList();
         for (const YAML::Node& item : yaml) node.Append(Convert(item, line));
         break;
-      case YAML::NodeType::Map:
+      }
+      case YAML::NodeType::Map: {
         CheckContainerTag(yaml, kTagMap, line);
+        const OpenContainer open(this, yaml, fallback_line);
         node = ConvertMap(yaml, line);
         break;
+      }
     }
     node.set_source(SourceLocation{source_name_, line});
     return node;
   }
 
  private:
+  // The containers being converted, outermost first. An alias inside its own
+  // anchor's content (`a: &x {b: *x}`) makes yaml-cpp's node graph cyclic;
+  // converting it would recurse until the stack overflows (a config fuzzer
+  // finding), so it is an error, as a config tree cannot hold itself. The
+  // line is the alias's (an alias node carries its anchor's mark).
+  class OpenContainer {
+   public:
+    OpenContainer(const YamlConverter* converter,
+                  const YAML::Node& yaml,
+                  int line)
+        : open_(&converter->open_) {
+      for (const YAML::Node& outer : *open_) {
+        if (outer.is(yaml)) {
+          converter->Fail(line,
+                          "an alias refers to a node that contains it "
+                          "(recursive YAML structures are not supported)");
+        }
+      }
+      open_->push_back(yaml);
+    }
+    ~OpenContainer() { open_->pop_back(); }
+    OpenContainer(const OpenContainer&) = delete;
+    OpenContainer& operator=(const OpenContainer&) = delete;
+
+   private:
+    std::vector<YAML::Node>* open_;
+  };
+
   int LineOf(const YAML::Node& yaml, int fallback) const {
     const YAML::Mark mark = yaml.Mark();
     return mark.line >= 0 ? mark.line + 1 : fallback;
@@ -349,6 +381,7 @@ class YamlConverter {
   }
 
   std::string source_name_;
+  mutable std::vector<YAML::Node> open_;
 };
 
 // ---------------------------------------------------------------------------

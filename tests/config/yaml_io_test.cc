@@ -244,6 +244,26 @@ TEST(ParseYaml, MergeKeys) {
   EXPECT_EQ(derived.at("a").path(), "derived.a");
 }
 
+// A config fuzzer finding (tests/fuzz/corpus/config/crash-9138...): an alias
+// inside its own anchor's content made the node graph cyclic and the
+// conversion overflowed the stack.
+TEST(ParseYaml, RecursiveAliasIsAnErrorNotAStackOverflow) {
+  const std::string in_map = ErrorMessage<ConfigError>(
+      [] { ParseYaml("x: 1\na: &self\n  b: *self\n", "cycle.yaml"); });
+  EXPECT_EQ(in_map.rfind("cycle.yaml:3: an alias refers to a node that ", 0),
+            0u)
+      << in_map;
+  EXPECT_THROW(ParseYaml("a: &l [1, *l]\n", "cycle.yaml"), ConfigError);
+  EXPECT_THROW(ParseYaml("a: &m\n  c:\n    d: [*m]\n", "cycle.yaml"),
+               ConfigError);
+  EXPECT_THROW(ParseYaml("a: &m\n  <<: *m\n", "cycle.yaml"), ConfigError);
+  // The same node reached twice, but not inside itself, is fine.
+  const ConfigNode shared =
+      ParseYaml("a: &s {k: 1}\nb: [*s, *s]\nc: *s\n", "shared.yaml");
+  EXPECT_EQ(shared.at("b").at(1).at("k").AsInt(), 1);
+  EXPECT_EQ(shared.at("c").at("k").AsInt(), 1);
+}
+
 TEST(ParseYaml, EmptyDocumentIsNull) {
   EXPECT_TRUE(ParseYaml("", "empty.yaml").IsNull());
   EXPECT_TRUE(ParseYaml("# only a comment\n", "empty.yaml").IsNull());
