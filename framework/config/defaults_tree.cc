@@ -794,6 +794,7 @@ class DefaultsTreeBuilder {
                                   : std::string());
     if (!parent.Name().has_value()) return;
     if (CheckNotMissing(parent)) return;
+    if (!parent.dummy) CheckNotItsOwnAncestor(root);
 
     const LoadedConfig* loaded =
         parent.dummy ? &empty_ : loader_.Load(parent.ConfigPath());
@@ -888,6 +889,25 @@ class DefaultsTreeBuilder {
   }
 
  private:
+  // A config whose defaults list leads back to itself (`a` lists `b`, `b`
+  // lists `a`, or a config lists itself) would expand forever: Hydra 1.3 dies
+  // there with a RecursionError, this tree with a stack overflow (a config
+  // fuzzer finding). The error names the chain.
+  static void CheckNotItsOwnAncestor(const TreeNode& node) {
+    const std::string path = node.node.ConfigPath();
+    std::vector<std::string> chain = {path};
+    for (const TreeNode* up = node.parent; up != nullptr; up = up->parent) {
+      if (up->node.dummy) break;
+      chain.push_back(up->node.ConfigPath());
+      if (chain.back() != path) continue;
+      std::reverse(chain.begin(), chain.end());
+      throw ConfigError(
+          fmt::format("Circular defaults list: '{}' includes itself ({})",
+                      path,
+                      fmt::join(chain, " -> ")));
+    }
+  }
+
   static std::unique_ptr<TreeNode> MakeNode(const Element& element,
                                             TreeNode* parent) {
     auto node = std::make_unique<TreeNode>();

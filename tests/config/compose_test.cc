@@ -341,6 +341,32 @@ TEST(ComposeDefaultsList, MissingNonGroupConfigIsAnError) {
   EXPECT_EQ(ComposeError(dir), "In 'config': Could not load 'base_mysql'.");
 }
 
+// Hydra 1.3 dies with a RecursionError here (hydra#1828); a config fuzzer
+// input (tests/fuzz/corpus/config/crash-ff39...) overflowed the stack.
+TEST(ComposeDefaultsList, CircularDefaultsListIsAnError) {
+  const fs::path self =
+      MakeTree({{"config.yaml", "defaults:\n  - config\n"}}, "self");
+  EXPECT_EQ(ComposeError(self),
+            "Circular defaults list: 'config' includes itself "
+            "(config -> config)");
+  const fs::path loop = MakeTree({{"config.yaml", "defaults:\n  - db: a\n"},
+                                  {"db/a.yaml", "defaults:\n  - b\n"},
+                                  {"db/b.yaml", "defaults:\n  - /db/a\n"}},
+                                 "loop");
+  EXPECT_EQ(ComposeError(loop),
+            "Circular defaults list: 'db/a' includes itself "
+            "(db/a -> db/b -> db/a)");
+  // The same config in two branches is no cycle.
+  const ComposeResult twice = ComposeTree(
+      MakeTree({{"config.yaml", "defaults:\n  - a\n  - b\n  - _self_\n"},
+                {"a.yaml", "defaults:\n  - common\n  - _self_\nx: 1\n"},
+                {"b.yaml", "defaults:\n  - common\n  - _self_\ny: 2\n"},
+                {"common.yaml", "c: 3\n"}},
+               "twice"));
+  EXPECT_EQ(Int(twice.root, "c"), 3);
+  EXPECT_EQ(Int(twice.root, "y"), 2);
+}
+
 TEST(ComposeDefaultsList, OptionalMissingOptionIsSkipped) {
   const fs::path dir = MakeTree(
       WithDb({{"config.yaml",
