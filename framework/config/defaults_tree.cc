@@ -890,9 +890,9 @@ class DefaultsTreeBuilder {
 
  private:
   // A config whose defaults list leads back to itself (`a` lists `b`, `b`
-  // lists `a`, or a config lists itself) would expand forever: Hydra 1.3 dies
-  // there with a RecursionError, this tree with a stack overflow (a config
-  // fuzzer finding). The error names the chain.
+  // lists `a`, or a config lists itself) would expand forever: Hydra's own
+  // report of it (hydra#1828, for 1.1) is a RecursionError, this tree's was
+  // a stack overflow (a config fuzzer finding). The error names the chain.
   static void CheckNotItsOwnAncestor(const TreeNode& node) {
     const std::string path = node.node.ConfigPath();
     std::vector<std::string> chain = {path};

@@ -341,8 +341,8 @@ TEST(ComposeDefaultsList, MissingNonGroupConfigIsAnError) {
   EXPECT_EQ(ComposeError(dir), "In 'config': Could not load 'base_mysql'.");
 }
 
-// Hydra 1.3 dies with a RecursionError here (hydra#1828); a config fuzzer
-// input (tests/fuzz/corpus/config/crash-ff39...) overflowed the stack.
+// Hydra 1.1 raised a RecursionError here (hydra#1828); a config fuzzer input
+// (tests/fuzz/corpus/config/crash-ff39...) overflowed this stack.
 TEST(ComposeDefaultsList, CircularDefaultsListIsAnError) {
   const fs::path self =
       MakeTree({{"config.yaml", "defaults:\n  - config\n"}}, "self");
