@@ -81,10 +81,10 @@ max_len="${SOMA_FUZZ_MAX_LEN:-$max_len}"
 runs="${SOMA_FUZZ_RUNS:-}"
 workers="${SOMA_FUZZ_WORKERS:-1}"
 sanitize="${SOMA_FUZZ_SANITIZE:-address,undefined}"
-if ((${SOMA_FUZZ_WORKERS:-1} > 1)); then default_timeout=120; else default_timeout=10; fi
-timeout="${SOMA_FUZZ_TIMEOUT:-$default_timeout}"
+timeout="${SOMA_FUZZ_TIMEOUT:-}"
 rss_limit="${SOMA_FUZZ_RSS_LIMIT_MB:-2048}"
-for number in "$seconds" "$max_len" "$workers" "$timeout" "$rss_limit" ${runs:+"$runs"}; do
+for number in "$seconds" "$max_len" "$workers" "$rss_limit" ${runs:+"$runs"} \
+  ${timeout:+"$timeout"}; do
   if [[ ! "$number" =~ ^[0-9]+$ ]]; then
     echo "scripts/fuzz.sh: expected a non-negative integer, got '$number'" >&2
     exit 2
@@ -99,6 +99,7 @@ if ((workers > 1)) && [[ -n "${3:-}" ]]; then
     "$workers times; give no seed" >&2
   exit 2
 fi
+timeout="${timeout:-$((workers > 1 ? 120 : 10))}"
 if ((seconds == 0)) && [[ -z "$runs" ]]; then
   echo "scripts/fuzz.sh: seconds=0 (no time limit) needs SOMA_FUZZ_RUNS" >&2
   exit 2
@@ -174,25 +175,23 @@ fi
 log="$build/${target}_fuzz.log"
 echo "$tag fuzzing ${what} for ${seconds}s${runs:+ or $runs executions}${3:+ (seed $3)}" \
   "($sanitize, max_len $max_len, $workers worker(s))"
-status=0
-if ((workers == 1)); then
-  "$build/tests/fuzz/${target}_fuzzer" "${seed_flag[@]}" "${limits[@]}" \
-    -max_len="$max_len" -rss_limit_mb="$rss_limit" -timeout="$timeout" -dict="tests/fuzz/${target}.dict" \
-    -artifact_prefix="$artifacts" -print_final_stats=1 "$corpus" "$seeds" >"$log" 2>&1 ||
-    status=1
-  logs=("$log")
-else
-  # libFuzzer writes fuzz-<i>.log into its working directory (the build
-  # directory here), so every path it is given is absolute.
-  root="$PWD"
-  abs() { if [[ "$1" = /* ]]; then echo "$1"; else echo "$root/$1"; fi; }
+# With several workers libFuzzer writes fuzz-<i>.log into its working
+# directory (the build directory here), so every path it is given is absolute.
+root="$PWD"
+abs() { if [[ "$1" = /* ]]; then echo "$1"; else echo "$root/$1"; fi; }
+args=("${seed_flag[@]}" "${limits[@]}" -max_len="$max_len" -rss_limit_mb="$rss_limit"
+  -timeout="$timeout" -dict="$(abs "tests/fuzz/${target}.dict")"
+  -artifact_prefix="$(abs "$artifacts")" -print_final_stats=1)
+logs=("$log")
+if ((workers > 1)); then
+  args+=(-jobs="$workers" -workers="$workers")
   rm -f "$build/${target}"_fuzz.*.log "$build"/fuzz-*.log
-  (cd "$build" && "$(abs "$build/tests/fuzz/${target}_fuzzer")" "${seed_flag[@]}" \
-    "${limits[@]}" -jobs="$workers" -workers="$workers" -max_len="$max_len" \
-    -rss_limit_mb="$rss_limit" -timeout="$timeout" -dict="$(abs "tests/fuzz/${target}.dict")" \
-    -artifact_prefix="$(abs "$artifacts")" -print_final_stats=1 "$(abs "$corpus")" \
-    "$(abs "$seeds")" >"$(abs "$log")" 2>&1) || status=1
   logs=()
+fi
+status=0
+(cd "$build" && "$(abs "$build/tests/fuzz/${target}_fuzzer")" "${args[@]}" "$(abs "$corpus")" \
+  "$(abs "$seeds")" >"$(abs "$log")" 2>&1) || status=1
+if ((workers > 1)); then
   for ((i = 0; i < workers; i++)); do
     mv "$build/fuzz-$i.log" "$build/${target}_fuzz.$i.log" 2>/dev/null || true
     logs+=("$build/${target}_fuzz.$i.log")
