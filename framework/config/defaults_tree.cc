@@ -895,11 +895,14 @@ class DefaultsTreeBuilder {
   // a stack overflow (a config fuzzer finding). The error names the chain.
   static void CheckNotItsOwnAncestor(const TreeNode& node) {
     const std::string path = node.node.ConfigPath();
-    std::vector<std::string> chain = {path};
-    for (const TreeNode* up = node.parent; up != nullptr; up = up->parent) {
-      if (up->node.dummy) break;
-      chain.push_back(up->node.ConfigPath());
-      if (chain.back() != path) continue;
+    for (const TreeNode* up = node.parent; up != nullptr && !up->node.dummy;
+         up = up->parent) {
+      if (up->node.ConfigPath() != path) continue;
+      std::vector<std::string> chain = {path};
+      for (const TreeNode* n = node.parent; n != up; n = n->parent) {
+        chain.push_back(n->node.ConfigPath());
+      }
+      chain.push_back(path);
       std::reverse(chain.begin(), chain.end());
       throw ConfigError(
           fmt::format("Circular defaults list: '{}' includes itself ({})",
