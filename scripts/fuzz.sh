@@ -49,7 +49,9 @@
 # Exit 0: no finding, or clang/libFuzzer unavailable (skipped with a message).
 # Exit 1: a crash, leak, timeout or sanitizer report; the input is saved in
 # build-fuzz/<target>_artifacts/ (copy it to tests/fuzz/corpus/<target>/ once
-# fixed). Exit 2: usage error.
+# fixed). Exit 2: usage error. Exit 130: the fuzzer was interrupted (SIGINT or
+# SIGTERM, e.g. a batch job's time limit) before it found anything; an
+# exploratory session's corpus is kept, so the same command goes on from there.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -190,30 +192,46 @@ if ((workers > 1)); then
 fi
 status=0
 (cd "$build" && "$(abs "$build/tests/fuzz/${target}_fuzzer")" "${args[@]}" "$(abs "$corpus")" \
-  "$(abs "$seeds")" >"$(abs "$log")" 2>&1) || status=1
+  "$(abs "$seeds")" >"$(abs "$log")" 2>&1) || status=$?
 if ((workers > 1)); then
   for ((i = 0; i < workers; i++)); do
     mv "$build/fuzz-$i.log" "$build/${target}_fuzz.$i.log" 2>/dev/null || true
     logs+=("$build/${target}_fuzz.$i.log")
   done
 fi
+executed() {
+  local total=0 l n
+  for l in "${logs[@]}"; do
+    n="$(grep -oE 'stat::number_of_executed_units: [0-9]+' "$l" 2>/dev/null |
+      grep -oE '[0-9]+$' || echo 0)"
+    total=$((total + n))
+  done
+  echo "$total"
+}
 # A worker's failure shows in its own log, not in the exit status of -jobs.
+finding=0
 if grep -lE '^==[0-9]+==ERROR|^SUMMARY: |runtime error:|invariant broken' "${logs[@]}" \
   >/dev/null 2>&1; then
-  status=1
+  finding=1
 fi
-if ((status != 0)); then
+# libFuzzer exits 72 when SIGINT/SIGTERM interrupts it (a worker killed under
+# -jobs leaves its parent to exit non-zero too); with no report in any log
+# that is an interruption, not a finding.
+if ((status != 0 && finding == 0)) &&
+  grep -qE '^==[0-9]+== libFuzzer: run interrupted' "${logs[@]}" 2>/dev/null; then
+  echo "$tag interrupted after $(executed) executions, no finding up to then" \
+    "(corpus kept in $corpus)"
+  exit 130
+fi
+if ((status != 0 || finding != 0)); then
   for l in "${logs[@]}"; do
     [[ -e "$l" ]] && grep -v '^#' "$l" | tail -n 40
   done
   echo "$tag FINDING: see $artifacts and ${logs[*]}"
   exit 1
 fi
-total=0
 for l in "${logs[@]}"; do
-  n="$(grep -oE 'stat::number_of_executed_units: [0-9]+' "$l" | grep -oE '[0-9]+$' || echo 0)"
   grep -E '^#[0-9]+[[:space:]]+DONE' "$l" || true
-  total=$((total + n))
 done
-echo "$tag stat::number_of_executed_units: $total"
+echo "$tag stat::number_of_executed_units: $(executed)"
 echo "$tag no crashes"
