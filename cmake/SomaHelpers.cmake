@@ -25,6 +25,12 @@ function(soma_add_library)
   set_target_properties(${target} PROPERTIES EXPORT_NAME ${ARG_NAME})
   target_link_libraries(${target} PUBLIC ${ARG_PUBLIC_LINK_LIBS} PRIVATE ${ARG_PRIVATE_LINK_LIBS})
   target_compile_options(${target} PRIVATE ${SOMA_WARNING_FLAGS})
+  if(SOMA_ASAN)
+    # An instrumented archive needs the sanitizer runtimes wherever it is
+    # linked; add_link_options covers this tree only, the exported target
+    # carries it to a find_package(somalab) consumer of an ASan install.
+    target_link_options(${target} INTERFACE -fsanitize=address,undefined)
+  endif()
   set_property(GLOBAL APPEND PROPERTY SOMA_LIBRARIES ${target})
 endfunction()
 
