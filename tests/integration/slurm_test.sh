@@ -41,6 +41,15 @@ for tool in munged slurmctld slurmd sbatch squeue scancel sinfo; do
   fi
 done
 
+# A run killed before its EXIT trap (CTest's timeout sends SIGKILL) leaves its
+# daemons holding the cluster's ports: stop those of earlier runs first.
+for stale in /tmp/soma_slurm_test.*/cluster; do
+  [[ -d $stale ]] || continue
+  echo "slurm_test: stopping the cluster an earlier run left in $stale"
+  bash "$source/scripts/slurm_local.sh" stop "$stale" || true
+  rm -rf "${stale%/cluster}"
+done
+
 work=$(mktemp -d /tmp/soma_slurm_test.XXXXXX)
 cluster=$work/cluster
 cleanup() {
