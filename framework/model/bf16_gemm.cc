@@ -80,6 +80,98 @@ __attribute__((target("amx-tile,amx-bf16"))) void AmxBlock(const uint16_t* a,
   _tile_stored(3, out + 16 * 32 + 16, 128);
 }
 
+/// The block of AmxBlock with AVX512_BF16, stored as StoreBlock stores it:
+/// `dst[r][j] (+)= sum + bias[j]` for `r < rows`, `j < cols`. Per group of 8
+/// rows of A, 16 accumulators (8 rows x the two 16-column blocks of B); each
+/// step broadcasts one k pair of a row of A (a 32-bit bf16 pair) against the
+/// pair-interleaved columns of B, the layout the tiles read. Row groups at or
+/// past `rows` are not computed (their A rows are zero padding). A is packed
+/// by rows (`interleaved` false: row r's k values contiguous) or, for an A
+/// read transposed, in B's own layout (two 16-row blocks of k pairs).
+__attribute__((target("avx512f,avx512bf16"))) void DpBlock(const uint16_t* a,
+                                                           bool interleaved,
+                                                           int64_t k_pad,
+                                                           const uint16_t* b,
+                                                           int64_t kp_count,
+                                                           int64_t jb,
+                                                           int64_t rows,
+                                                           int64_t cols,
+                                                           const float* bias,
+                                                           bool accumulate,
+                                                           float* dst,
+                                                           int64_t ld) {
+  constexpr int kRows = 8;
+  const uint16_t* b0 = b + jb * kp_count * 32;
+  const uint16_t* b1 = b0 + kp_count * 32;
+  const int64_t pairs = k_pad / 2;
+  const __mmask16 m0 = static_cast<__mmask16>(
+      cols >= 16 ? 0xFFFF : (1u << std::max<int64_t>(cols, 0)) - 1u);
+  const __mmask16 m1 = static_cast<__mmask16>(
+      cols >= 32 ? 0xFFFF : (cols > 16 ? (1u << (cols - 16)) - 1u : 0u));
+  const __m512 bias0 =
+      bias != nullptr ? _mm512_maskz_loadu_ps(m0, bias) : _mm512_setzero_ps();
+  const __m512 bias1 = bias != nullptr ? _mm512_maskz_loadu_ps(m1, bias + 16)
+                                       : _mm512_setzero_ps();
+  const int64_t pair_stride = interleaved ? 32 : 2;
+  for (int64_t r0 = 0; r0 < rows; r0 += kRows) {
+    __m512 acc0[kRows];
+    __m512 acc1[kRows];
+    const uint16_t* ar[kRows];
+#pragma GCC unroll 8
+    for (int r = 0; r < kRows; ++r) {
+      acc0[r] = bias0;
+      acc1[r] = bias1;
+      const int64_t row = r0 + r;
+      ar[r] = interleaved ? a + (row / kTile) * pairs * 32 + 2 * (row % kTile)
+                          : a + row * k_pad;
+    }
+    for (int64_t p = 0; p < pairs; ++p) {
+      const __m512i w0 = _mm512_loadu_si512(b0 + p * 32);
+      const __m512i w1 = _mm512_loadu_si512(b1 + p * 32);
+      const int64_t offset = p * pair_stride;
+#pragma GCC unroll 8
+      for (int r = 0; r < kRows; ++r) {
+        uint32_t pair;
+        std::memcpy(&pair, ar[r] + offset, sizeof(pair));
+        const __m512i x = _mm512_set1_epi32(static_cast<int>(pair));
+        acc0[r] = _mm512_dpbf16_ps(acc0[r],
+                                   reinterpret_cast<const __m512bh&>(x),
+                                   reinterpret_cast<const __m512bh&>(w0));
+        acc1[r] = _mm512_dpbf16_ps(acc1[r],
+                                   reinterpret_cast<const __m512bh&>(x),
+                                   reinterpret_cast<const __m512bh&>(w1));
+      }
+    }
+    const int group = static_cast<int>(std::min<int64_t>(kRows, rows - r0));
+#pragma GCC unroll 8
+    for (int r = 0; r < kRows; ++r) {
+      if (r >= group) break;
+      float* d = dst + (r0 + r) * ld;
+      __m512 v0 = acc0[r];
+      __m512 v1 = acc1[r];
+      if (accumulate) {
+        v0 = _mm512_add_ps(v0, _mm512_maskz_loadu_ps(m0, d));
+        v1 = _mm512_add_ps(v1, _mm512_maskz_loadu_ps(m1, d + 16));
+      }
+      _mm512_mask_storeu_ps(d, m0, v0);
+      _mm512_mask_storeu_ps(d + 16, m1, v1);
+    }
+  }
+}
+
+bool CpuHasAvx512Bf16() {
+  if (!__builtin_cpu_supports("avx512f")) return false;
+  // CPUID.(EAX=7, ECX=0):EAX = the highest sub-leaf;
+  // CPUID.(EAX=7, ECX=1):EAX bit 5 = AVX512_BF16.
+  unsigned int eax = 7, ebx = 0, ecx = 0, edx = 0;
+  __asm__ volatile("cpuid" : "+a"(eax), "=b"(ebx), "+c"(ecx), "=d"(edx));
+  if (eax < 1) return false;
+  eax = 7;
+  ecx = 1;
+  __asm__ volatile("cpuid" : "+a"(eax), "=b"(ebx), "+c"(ecx), "=d"(edx));
+  return ((eax >> 5) & 1u) != 0;
+}
+
 __attribute__((target("amx-tile"))) void LoadTileConfig() {
   TileConfig config;
   for (int t = 0; t < 8; ++t) {
@@ -189,6 +281,36 @@ bool AmxBf16Available() {
   return available;
 }
 
+bool Avx512Bf16Available() {
+  static const bool available = CpuHasAvx512Bf16();
+  return available;
+}
+
+Bf16Backend DefaultBf16Backend() {
+  if (AmxBf16Available()) return Bf16Backend::kAmx;
+  if (Avx512Bf16Available()) return Bf16Backend::kAvx512;
+  return Bf16Backend::kNone;
+}
+
+std::vector<Bf16Backend> AvailableBf16Backends() {
+  std::vector<Bf16Backend> out;
+  if (AmxBf16Available()) out.push_back(Bf16Backend::kAmx);
+  if (Avx512Bf16Available()) out.push_back(Bf16Backend::kAvx512);
+  return out;
+}
+
+const char* Bf16BackendName(Bf16Backend backend) {
+  switch (backend) {
+    case Bf16Backend::kAmx:
+      return "AMX";
+    case Bf16Backend::kAvx512:
+      return "AVX512_BF16";
+    case Bf16Backend::kNone:
+      break;
+  }
+  return "none";
+}
+
 float RoundToBf16(float value) {
   const uint32_t bits = static_cast<uint32_t>(ToBf16(value)) << 16;
   float out;
@@ -265,6 +387,26 @@ PackPairsContiguous(const float* r0,
   }
 }
 
+/// A read transposed (`A(i, l) = a[l * a_cs + i]`, rows `i < rows` of a
+/// 32-row block) in B's packed layout: two blocks of 16 rows, each `k_pad / 2`
+/// k pairs of 16 interleaved rows; k and rows past the data are zero.
+void PackPairsOfA(const float* a,
+                  int64_t a_cs,
+                  int64_t rows,
+                  int64_t k,
+                  int64_t k_pad,
+                  uint16_t* out) {
+  const int64_t pairs = k_pad / 2;
+  for (int64_t l = 0; l < k_pad; l += 2) {
+    PackPairsContiguous(l < k ? a + l * a_cs : nullptr,
+                        l + 1 < k ? a + (l + 1) * a_cs : nullptr,
+                        rows,
+                        kRowBlock / kTile,
+                        out + (l / 2) * 32,
+                        pairs * 32);
+  }
+}
+
 }  // namespace
 
 void PackBf16B(const float* b,
@@ -309,50 +451,85 @@ void MatMulBf16(const float* a,
                 float* c,
                 int64_t ldc,
                 Bf16Scratch& scratch) {
-  SOMA_CHECK(AmxBf16Available()) << "MatMulBf16 needs AMX-BF16";
+  const Bf16Backend backend = scratch.backend;
+  SOMA_CHECK((backend == Bf16Backend::kAmx && AmxBf16Available()) ||
+             (backend == Bf16Backend::kAvx512 && Avx512Bf16Available()))
+      << "MatMulBf16: the bf16 backend " << Bf16BackendName(backend)
+      << " is not available on this CPU";
   if (m <= 0 || b.n <= 0) return;
+  const bool amx = backend == Bf16Backend::kAmx;
+  // A read transposed (dW = dY^T X): AVX512_BF16 takes it pair-interleaved,
+  // packed without a transpose; the tiles need it by rows.
+  const bool interleaved = !amx && a_rs == 1 && a_cs != 1;
   const int64_t kp_count = b.k_pad / 2;
   // Chunks of k: the chunk of B (all column blocks) stays in L2 while every
   // row block of A uses it; partial sums go through C.
   const int64_t chunk = std::min(kChunkK, b.k_pad);
   scratch.a.resize(static_cast<size_t>(kRowBlock * chunk));
   scratch.c.resize(32 * 32);
-  LoadTileConfig();
+  if (amx) LoadTileConfig();
   for (int64_t k0 = 0; k0 < std::max<int64_t>(b.k, 1); k0 += chunk) {
     const int64_t kc = std::min(chunk, b.k - k0);
     const int64_t kc_pad =
         std::max<int64_t>(kTileK, (kc + kTileK - 1) / kTileK * kTileK);
     const bool first = k0 == 0;
     for (int64_t i0 = 0; i0 < m; i0 += kRowBlock) {
-      PackRowsOfA(a + k0 * a_cs,
-                  a_rs,
-                  a_cs,
-                  m,
-                  std::max<int64_t>(kc, 0),
-                  kc_pad,
-                  i0,
-                  scratch.a.data());
       const int64_t rows = std::min(kRowBlock, m - i0);
+      if (interleaved) {
+        PackPairsOfA(a + k0 * a_cs + i0,
+                     a_cs,
+                     rows,
+                     std::max<int64_t>(kc, 0),
+                     kc_pad,
+                     scratch.a.data());
+      } else {
+        PackRowsOfA(a + k0 * a_cs,
+                    a_rs,
+                    a_cs,
+                    m,
+                    std::max<int64_t>(kc, 0),
+                    kc_pad,
+                    i0,
+                    scratch.a.data());
+      }
       for (int64_t jb = 0; jb < b.n_pad / kTile; jb += 2) {
+        const int64_t j0 = jb * kTile;
+        const int64_t cols = std::min<int64_t>(32, b.n - j0);
+        const float* block_bias =
+            first && bias != nullptr ? bias + j0 : nullptr;
+        const bool block_accumulate = accumulate || !first;
+        if (!amx) {
+          DpBlock(scratch.a.data(),
+                  interleaved,
+                  kc_pad,
+                  b.data.data() + (k0 / 2) * 32,
+                  kp_count,
+                  jb,
+                  rows,
+                  cols,
+                  block_bias,
+                  block_accumulate,
+                  c + i0 * ldc + j0,
+                  ldc);
+          continue;
+        }
         AmxBlock(scratch.a.data(),
                  kc_pad,
                  b.data.data() + (k0 / 2) * 32,
                  kp_count,
                  jb,
                  scratch.c.data());
-        const int64_t j0 = jb * kTile;
-        const int64_t cols = std::min<int64_t>(32, b.n - j0);
         StoreBlock(scratch.c.data(),
                    rows,
                    cols,
-                   first && bias != nullptr ? bias + j0 : nullptr,
-                   accumulate || !first,
+                   block_bias,
+                   block_accumulate,
                    c + i0 * ldc + j0,
                    ldc);
       }
     }
   }
-  ReleaseTiles();
+  if (amx) ReleaseTiles();
 }
 
 }  // namespace soma::internal

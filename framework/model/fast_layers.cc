@@ -429,7 +429,7 @@ void LinearOp::Forward(const Context& ctx,
                        float* y,
                        int64_t ldy,
                        const GemmEpilogue& epilogue) {
-  if (ctx.bf16) {
+  if (UsesBf16(ctx)) {
     SOMA_CHECK(epilogue.row_scale == nullptr && epilogue.relu_columns == 0)
         << "bf16 products support a residual epilogue only";
     if (!fwd_packed_) {
@@ -489,13 +489,13 @@ void LinearOp::Backward(const Context& ctx,
                         bool accumulate) {
   const int64_t kp = RoundUp16(in_);
   dw_.Resize(static_cast<size_t>(out_ * kp + 16));
-  if (ctx.bf16) {
+  if (UsesBf16(ctx)) {
     // The bias gradient.
     db_ = ParallelColumnReduce(
         rows, out_, [&](int64_t begin, int64_t end, double* sums, float* tmp) {
           ColumnSums(dy + begin * ldy, ldy, end - begin, out_, sums, tmp);
         });
-    // dW = dy^T x on AMX: x packed once (threads split its rows), then the
+    // dW = dy^T x in bf16: x packed once (threads split its rows), then the
     // output rows of dW in blocks of 32.
     internal::PrepareBf16B(rows, in_, &x_b_);
     const int64_t pairs = (x_b_.k_pad + 1) / 2;
@@ -601,7 +601,7 @@ void LinearOp::Backward(const Context& ctx,
     row += m;
   }
   if (dx == nullptr) return;
-  if (ctx.bf16) {
+  if (UsesBf16(ctx)) {
     if (!bwd_packed_) {
       // B(m, k) = W[m][k].
       internal::PrepareBf16B(out_, in_, &bwd_b_);

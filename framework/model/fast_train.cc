@@ -189,11 +189,12 @@ std::unique_ptr<FastTrainer> FastTrainer::Create(
     const FastTrainerOptions& options,
     std::string* why_not) {
   std::string reason;
-  if (options.bf16 && !internal::AmxBf16Available()) {
+  if (options.bf16 &&
+      internal::DefaultBf16Backend() == internal::Bf16Backend::kNone) {
     if (why_not != nullptr) {
       *why_not =
-          "bf16 products need AMX-BF16, which this CPU (or kernel) "
-          "does not provide";
+          "bf16 products need AVX512_BF16 or AMX-BF16, which this CPU (or "
+          "kernel) does not provide";
     }
     return nullptr;
   }
@@ -339,6 +340,11 @@ double FastTrainer::Step(const at::Tensor& points,
   head_->Pack();
   classifier_->Pack();
 
+  // With bf16 products, the classifier that makes the scores Sinkhorn reads
+  // stays fp32 (as the products over the 3 point coordinates do, LinearOp).
+  fast::Context scores_ctx = ctx_;
+  scores_ctx.bf16 = false;
+
   // Forward.
   encoder_->Forward(ctx_, points_, features_);
   backbone_->Forward(ctx_, features_, backbone_out_);
@@ -346,8 +352,12 @@ double FastTrainer::Step(const at::Tensor& points,
   head_->Forward(ctx_, head_in_, head_out_);
   fast::Mat& head_y = model_.conditioned() ? keys_ : scores_;
   head_y.Resize(rows, classifier_->out_channels());
-  classifier_->Forward(
-      ctx_, head_out_.data(), head_out_.ld, rows, head_y.data(), head_y.ld);
+  classifier_->Forward(scores_ctx,
+                       head_out_.data(),
+                       head_out_.ld,
+                       rows,
+                       head_y.data(),
+                       head_y.ld);
   const double loss = model_.conditioned()
                           ? LabelSideLoss(ids.data_ptr<int64_t>(), slots)
                           : loss_->ForwardBackward(ctx_,
@@ -359,7 +369,7 @@ double FastTrainer::Step(const at::Tensor& points,
 
   const fast::Mat& d_head_y = model_.conditioned() ? d_keys_ : d_scores_;
   d_head_out_.Resize(rows, head_out_.cols);
-  classifier_->Backward(ctx_,
+  classifier_->Backward(scores_ctx,
                         head_out_.data(),
                         head_out_.ld,
                         d_head_y.data(),
@@ -432,8 +442,10 @@ bool FusedAdamStep(torch::optim::Optimizer& optimizer) {
       }
       auto& state = static_cast<torch::optim::AdamParamState&>(*it->second);
       state.step(state.step() + 1);
-      const double bc1 = 1.0 - std::pow(beta1, double(state.step()));
-      const double bc2 = 1.0 - std::pow(beta2, double(state.step()));
+      const double bc1 =
+          1.0 - std::pow(beta1, static_cast<double>(state.step()));
+      const double bc2 =
+          1.0 - std::pow(beta2, static_cast<double>(state.step()));
       const float step_size = static_cast<float>(lr / bc1);
       const float inv_bc2_sqrt = static_cast<float>(1.0 / std::sqrt(bc2));
       const float b1 = static_cast<float>(beta1);

@@ -22,9 +22,10 @@
 // (tests/model/fast_train_test.cc).
 //
 // With `FastTrainerOptions::bf16` (`train.precision=bf16`) the per-point
-// convolutions' products (forward, dX, dW) run in bf16 on Intel AMX with fp32
-// accumulation (bf16_gemm.h); weights, optimizer state, BatchNorm, attention,
-// Sinkhorn and the loss stay fp32/double.
+// convolutions' products (forward, dX, dW) run in bf16 with fp32 accumulation
+// on AMX or AVX512_BF16 (bf16_gemm.h), except the products over the 3 point
+// coordinates and the classifier that makes the scores; weights, optimizer
+// state, BatchNorm, attention, Sinkhorn and the loss stay fp32/double.
 //
 // A layout-conditioned labeller (model=soma_any_layout) trains on the same
 // kernels for its point side and on torch autograd for its label side (see
@@ -87,8 +88,9 @@ struct Mat {
 /// What every op of one step shares.
 struct Context {
   internal::KernelIsa isa = internal::KernelIsa::kPortable;
-  /// Per-point convolutions' products in bf16 on AMX (bf16_gemm.h), fp32
-  /// accumulation; everything else stays fp32/double.
+  /// Per-point convolutions' products in bf16 (bf16_gemm.h, fp32
+  /// accumulation; LinearOp::UsesBf16 says which); the rest stays
+  /// fp32/double.
   bool bf16 = false;
   int64_t batch = 0;   // B frames
   int64_t points = 0;  // N points per frame
@@ -113,6 +115,11 @@ class LinearOp {
       : LinearOp(std::vector<Part>{Part{conv, {}}}) {}
   int64_t in_channels() const { return in_; }
   int64_t out_channels() const { return out_; }
+  /// Whether this op's products run in bf16 under `ctx`: a product over
+  /// fewer than 16 inputs (the input embedding's 3 point coordinates) stays
+  /// fp32, since bf16 would round the coordinates to 8 significant bits (~4
+  /// mm at 1 m) and gains nothing there (its k pads to 32).
+  bool UsesBf16(const Context& ctx) const { return ctx.bf16 && in_ >= 16; }
 
   /// Re-packs the weights from the torch parameters (after an update).
   void Pack();
@@ -319,8 +326,9 @@ std::unique_ptr<NormalizationLossOp> MakeLogSoftmaxLossOp(
 /// Options of the fast engine.
 struct FastTrainerOptions {
   internal::KernelIsa isa = internal::KernelIsa::kAuto;
-  /// The per-point convolutions' products in bf16 on AMX (requires
-  /// internal::AmxBf16Available(); Create fails with the reason otherwise).
+  /// The per-point convolutions' products in bf16 on
+  /// internal::DefaultBf16Backend() (AMX or AVX512_BF16; Create fails with
+  /// the reason when there is neither).
   bool bf16 = false;
 };
 

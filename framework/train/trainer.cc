@@ -741,12 +741,12 @@ Trainer::Trainer(TrainerOptions options,
     std::string why_not;
     FastTrainerOptions fast_options;
     if (options_.precision == "bf16") {
-      if (internal::AmxBf16Available()) {
+      if (internal::DefaultBf16Backend() != internal::Bf16Backend::kNone) {
         fast_options.bf16 = true;
       } else {
         SOMA_LOG(WARNING,
-                 "train: precision=bf16 needs AMX-BF16, which this CPU (or "
-                 "kernel) does not provide; training in fp32");
+                 "train: precision=bf16 needs AVX512_BF16 or AMX-BF16, which "
+                 "this CPU (or kernel) does not provide; training in fp32");
       }
     }
     fast_ = FastTrainer::Create(*model_, *loss_, fast_options, &why_not);
@@ -1047,16 +1047,20 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
           .label = "train", .unit = "frames", .enabled = options_.progress});
   const Rng torch_stream = Rng(options_.seed).Stream("torch");
   model_->train();
+  std::string kernels;
+  if (fast_ != nullptr) {
+    kernels = fmt::format(
+        " ({} kernels{})",
+        fast_->isa() == internal::KernelIsa::kAvx512 ? "AVX-512" : "portable",
+        fast_->bf16() ? fmt::format(", bf16 products on {}",
+                                    internal::Bf16BackendName(
+                                        internal::DefaultBf16Backend()))
+                      : "");
+  }
   SOMA_LOG(INFO,
            "train: {} engine{}, {} intra-op thread(s)",
            engine(),
-           fast_ != nullptr
-               ? fmt::format(" ({} kernels{})",
-                             fast_->isa() == internal::KernelIsa::kAvx512
-                                 ? "AVX-512"
-                                 : "portable",
-                             fast_->bf16() ? ", bf16 products on AMX" : "")
-               : "",
+           kernels,
            at::get_num_threads());
 
   Usr1Guard usr1;

@@ -79,8 +79,8 @@ struct TrainerOptions {
   /// libtorch autograd and torch::optim.
   std::string engine = "fast";
   /// "fp32", or "bf16": the fast engine's per-point convolution products in
-  /// bf16 on AMX with fp32 accumulation and fp32 master weights (needs
-  /// AMX-BF16; elsewhere fp32 with a logged reason). The torch engine is
+  /// bf16 with fp32 accumulation and fp32 master weights, on AMX or
+  /// AVX512_BF16 (elsewhere fp32 with a logged reason). The torch engine is
   /// always fp32.
   std::string precision = "fp32";
   /// Clip the global L2 norm of the gradients to this value before every

@@ -704,66 +704,74 @@ TEST(FastTrain, StepIsTheSameOnOneAndTwoThreads) {
 }
 
 TEST(FastTrain, Bf16ProductsMatchTheRoundedProduct) {
-  if (!internal::AmxBf16Available()) GTEST_SKIP() << "no AMX-BF16 here";
+  const std::vector<internal::Bf16Backend> backends =
+      internal::AvailableBf16Backends();
+  if (backends.empty()) GTEST_SKIP() << "no AVX512_BF16 or AMX-BF16 here";
   torch::manual_seed(10);
-  // C = A B with A, B read directly, transposed, and with C accumulated:
-  // equal to the float64 product of the bf16-rounded inputs up to fp32
-  // accumulation.
-  // (k = 2100 runs in three passes over B.)
-  for (auto [m, k, n] : std::vector<std::array<int64_t, 3>>{{5, 3, 7},
-                                                            {37, 70, 45},
-                                                            {64, 300, 33},
-                                                            {130, 44, 250},
-                                                            {40, 2100, 20}}) {
-    const torch::Tensor a = torch::randn({m, k});
-    const torch::Tensor b = torch::randn({k, n});
-    const torch::Tensor bias = torch::randn({n});
-    auto round = [](const torch::Tensor& t) {
-      torch::Tensor out = t.clone();
-      float* p = out.data_ptr<float>();
-      for (int64_t i = 0; i < out.numel(); ++i) {
-        p[i] = internal::RoundToBf16(p[i]);
-      }
-      return out.to(torch::kDouble);
-    };
-    const torch::Tensor exact = round(a).mm(round(b)) + bias.to(torch::kDouble);
-    for (bool transposed : {false, true}) {
-      // The transposed case stores A as A^T (k x m) and B as B^T (n x k).
-      const torch::Tensor at = a.t().contiguous();
-      const torch::Tensor bt = b.t().contiguous();
-      internal::PackedBf16 packed;
-      internal::PrepareBf16B(k, n, &packed);
-      if (transposed) {
-        internal::PackBf16B(bt.data_ptr<float>(), 1, k, 0, k, &packed);
-      } else {
-        internal::PackBf16B(b.data_ptr<float>(), n, 1, 0, k, &packed);
-      }
-      torch::Tensor c = torch::full({m, n}, 2.0f);
-      internal::Bf16Scratch scratch;
-      if (transposed) {
-        internal::MatMulBf16(at.data_ptr<float>(),
-                             1,
-                             m,
-                             m,
-                             packed,
-                             bias.data_ptr<float>(),
-                             /*accumulate=*/true,
-                             c.data_ptr<float>(),
-                             n,
-                             scratch);
-        EXPECT_LT(RelativeError(c - 2.0f, exact), 1e-5) << m << " " << k;
-      } else {
-        internal::MatMulBf16(a.data_ptr<float>(),
-                             k,
-                             1,
-                             m,
-                             packed,
-                             bias.data_ptr<float>(),
-                             false,
-                             c.data_ptr<float>(),
-                             n,
-                             scratch);
-        EXPECT_LT(RelativeError(c, exact), 1e-5) << m << " " << k;
+  // C = A B with A, B read directly, transposed, and with C accumulated, on
+  // every backend this CPU has: equal to the float64 product of the
+  // bf16-rounded inputs up to fp32 accumulation.
+  // (k = 2100 runs in three passes over B; m = 37 and 5 end in a partial
+  // block of rows.)
+  for (internal::Bf16Backend backend : backends) {
+    SCOPED_TRACE(internal::Bf16BackendName(backend));
+    for (auto [m, k, n] : std::vector<std::array<int64_t, 3>>{{5, 3, 7},
+                                                              {37, 70, 45},
+                                                              {64, 300, 33},
+                                                              {130, 44, 250},
+                                                              {40, 2100, 20}}) {
+      const torch::Tensor a = torch::randn({m, k});
+      const torch::Tensor b = torch::randn({k, n});
+      const torch::Tensor bias = torch::randn({n});
+      auto round = [](const torch::Tensor& t) {
+        torch::Tensor out = t.clone();
+        float* p = out.data_ptr<float>();
+        for (int64_t i = 0; i < out.numel(); ++i) {
+          p[i] = internal::RoundToBf16(p[i]);
+        }
+        return out.to(torch::kDouble);
+      };
+      const torch::Tensor exact =
+          round(a).mm(round(b)) + bias.to(torch::kDouble);
+      for (bool transposed : {false, true}) {
+        // The transposed case stores A as A^T (k x m) and B as B^T (n x k).
+        const torch::Tensor at = a.t().contiguous();
+        const torch::Tensor bt = b.t().contiguous();
+        internal::PackedBf16 packed;
+        internal::PrepareBf16B(k, n, &packed);
+        if (transposed) {
+          internal::PackBf16B(bt.data_ptr<float>(), 1, k, 0, k, &packed);
+        } else {
+          internal::PackBf16B(b.data_ptr<float>(), n, 1, 0, k, &packed);
+        }
+        torch::Tensor c = torch::full({m, n}, 2.0f);
+        internal::Bf16Scratch scratch;
+        scratch.backend = backend;
+        if (transposed) {
+          internal::MatMulBf16(at.data_ptr<float>(),
+                               1,
+                               m,
+                               m,
+                               packed,
+                               bias.data_ptr<float>(),
+                               /*accumulate=*/true,
+                               c.data_ptr<float>(),
+                               n,
+                               scratch);
+          EXPECT_LT(RelativeError(c - 2.0f, exact), 1e-5) << m << " " << k;
+        } else {
+          internal::MatMulBf16(a.data_ptr<float>(),
+                               k,
+                               1,
+                               m,
+                               packed,
+                               bias.data_ptr<float>(),
+                               false,
+                               c.data_ptr<float>(),
+                               n,
+                               scratch);
+          EXPECT_LT(RelativeError(c, exact), 1e-5) << m << " " << k;
+        }
       }
     }
   }
@@ -828,12 +836,17 @@ void CheckBf16Model(int64_t d,
 }
 
 TEST(FastTrain, Bf16GradientsStayCloseToExact) {
-  if (!internal::AmxBf16Available()) GTEST_SKIP() << "no AMX-BF16 here";
+  if (internal::DefaultBf16Backend() == internal::Bf16Backend::kNone) {
+    GTEST_SKIP() << "no AVX512_BF16 or AMX-BF16 here";
+  }
   torch::manual_seed(11);
-  // bf16 rounds the products' inputs to 8 significant bits (fp32 stays
-  // within 1e-4 of float64, above); the bounds are ~3x what was measured
-  // (small: 2.3% overall, 8% worst; paper size: 6.6%, 24%).
-  CheckBf16Model(20, 2, 4, 24, 7, 3, 12, true, 0.25, 0.07);
+  // bf16 rounds the backbone products' inputs to 8 significant bits (fp32
+  // stays within 1e-4 of float64, above). Measured with the input embedding
+  // and score head in fp32: small model, randomized, 3 frames, seeds 20-25:
+  // 3.1-14.9% overall (mean 6.6%; 10.5% with every product in bf16), 12-29%
+  // worst; seed 11 7.1%, 18%; paper size 4.9%, 16% (6.6%, 21% all bf16). A
+  // wrong product gives errors of order 100%.
+  CheckBf16Model(20, 2, 4, 24, 7, 3, 12, true, 0.6, 0.2);
   CheckBf16Model(125, 8, 5, 256, 41, 8, 44, false, 0.7, 0.2);
 }
 

@@ -10,8 +10,16 @@
 //   it; `sets` > 1 rotates over that many inputs and outputs (12 MB each at
 //   K = 250), so they come from L3/DRAM as in a step.
 // - WeightGrad/M/K/chunk: dW = dy^T x in row chunks, as LinearOp::Backward.
+// - GemmBf16/M/K/backend: the forward product of Gemm with
+//   train.precision=bf16 (MatMulBf16 on 64-row ranges, as LinearOp::Forward
+//   calls it, the rounding of x to bf16 included), backend 1 = AVX512_BF16,
+//   2 = AMX (skipped where the CPU lacks it).
+// - WeightGradBf16/M/K/backend: dW = dy^T x as LinearOp::Backward computes
+//   it with train.precision=bf16 (x packed, then dy read transposed in
+//   blocks of 32 output rows; one thread).
 // - AttentionProbs (fused) against Gemm + SoftmaxRows (the path it replaced)
 //   and AttentionScoresGrad (fused dP = dO V^T + softmax backward), per head.
+#include "framework/model/bf16_gemm.h"
 #include "framework/model/fast_kernels.h"
 
 #include <benchmark/benchmark.h>
@@ -112,6 +120,90 @@ void BM_WeightGrad(benchmark::State& state) {
     }
     benchmark::DoNotOptimize(dw.data());
   }
+  state.counters["GFLOP/s"] =
+      benchmark::Counter(2.0 * kRows * m * k * state.iterations() / 1e9,
+                         benchmark::Counter::kIsRate);
+}
+
+void BM_GemmBf16(benchmark::State& state) {
+  const int64_t m = state.range(0), k = state.range(1);
+  const auto backend = static_cast<internal::Bf16Backend>(state.range(2));
+  const std::vector<internal::Bf16Backend> available =
+      internal::AvailableBf16Backends();
+  if (std::find(available.begin(), available.end(), backend) ==
+      available.end()) {
+    state.SkipWithError("this bf16 backend is not available on this CPU");
+    return;
+  }
+  const int64_t ldx = RoundUp16(k) + 16, ldy = RoundUp16(m) + 16;
+  AlignedFloats x, y, w, bias;
+  Fill(x, static_cast<size_t>(kRows * ldx + 16), 1);
+  y.Resize(static_cast<size_t>(kRows * ldy + 16));
+  Fill(w, static_cast<size_t>(m * k), 99);  // W (m x k); B(l, j) = W[j][l]
+  Fill(bias, static_cast<size_t>(RoundUp16(m)), 98);
+  internal::PackedBf16 packed;
+  internal::PrepareBf16B(k, m, &packed);
+  internal::PackBf16B(w.data(), 1, k, 0, k, &packed);
+  internal::Bf16Scratch scratch;
+  scratch.backend = backend;
+  for (auto _ : state) {
+    for (int64_t r0 = 0; r0 < kRows; r0 += 64) {
+      internal::MatMulBf16(x.data() + r0 * ldx,
+                           ldx,
+                           1,
+                           std::min<int64_t>(64, kRows - r0),
+                           packed,
+                           bias.data(),
+                           false,
+                           y.data() + r0 * ldy,
+                           ldy,
+                           scratch);
+    }
+    benchmark::DoNotOptimize(y.data());
+  }
+  state.SetLabel(internal::Bf16BackendName(backend));
+  state.counters["GFLOP/s"] =
+      benchmark::Counter(2.0 * kRows * m * k * state.iterations() / 1e9,
+                         benchmark::Counter::kIsRate);
+}
+
+void BM_WeightGradBf16(benchmark::State& state) {
+  const int64_t m = state.range(0), k = state.range(1);
+  const auto backend = static_cast<internal::Bf16Backend>(state.range(2));
+  const std::vector<internal::Bf16Backend> available =
+      internal::AvailableBf16Backends();
+  if (std::find(available.begin(), available.end(), backend) ==
+      available.end()) {
+    state.SkipWithError("this bf16 backend is not available on this CPU");
+    return;
+  }
+  const int64_t ldy = RoundUp16(m) + 16, ldx = RoundUp16(k) + 16;
+  const int64_t kp = RoundUp16(k);
+  AlignedFloats dy, x, dw;
+  Fill(dy, static_cast<size_t>(kRows * ldy + 16), 1);
+  Fill(x, static_cast<size_t>(kRows * ldx + 16), 2);
+  dw.Resize(static_cast<size_t>(m * kp + 16));
+  internal::PackedBf16 packed;
+  internal::Bf16Scratch scratch;
+  scratch.backend = backend;
+  for (auto _ : state) {
+    internal::PrepareBf16B(kRows, k, &packed);
+    internal::PackBf16B(x.data(), ldx, 1, 0, kRows, &packed);
+    for (int64_t m0 = 0; m0 < m; m0 += 32) {
+      internal::MatMulBf16(dy.data() + m0,
+                           1,
+                           ldy,
+                           std::min<int64_t>(32, m - m0),
+                           packed,
+                           nullptr,
+                           false,
+                           dw.data() + m0 * kp,
+                           kp,
+                           scratch);
+    }
+    benchmark::DoNotOptimize(dw.data());
+  }
+  state.SetLabel(internal::Bf16BackendName(backend));
   state.counters["GFLOP/s"] =
       benchmark::Counter(2.0 * kRows * m * k * state.iterations() / 1e9,
                          benchmark::Counter::kIsRate);
@@ -252,6 +344,18 @@ BENCHMARK(BM_WeightGrad)
     ->Args({250, 250, 64})
     ->Args({375, 125, 256})
     ->Args({125, 250, 256})
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_GemmBf16)
+    ->Args({250, 250, 1})
+    ->Args({375, 125, 1})
+    ->Args({125, 125, 1})
+    ->Args({250, 250, 2})
+    ->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_WeightGradBf16)
+    ->Args({250, 250, 1})
+    ->Args({375, 125, 1})
+    ->Args({125, 250, 1})
+    ->Args({250, 250, 2})
     ->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_AttentionProbsFused);
 BENCHMARK(BM_AttentionProbsGemmThenSoftmax);

@@ -4,7 +4,8 @@
 // (L = 41 labels, N = 44 points, Sinkhorn with 35 iterations), exactly the
 // step `soma train` runs: `torch` is libtorch autograd + torch::optim::Adam,
 // `fast` is FastTrainer::Step + FusedAdamStep (train.engine=fast),
-// `fast_bf16` the same with train.precision=bf16 (AMX; skipped elsewhere).
+// `fast_bf16` the same with train.precision=bf16 (AMX, else AVX512_BF16;
+// skipped where the CPU has neither).
 // `cpu_any_layout_*`: the layout-conditioned labeller (model=soma_any_layout
 // at scale=cpu) on sampled layouts as after the first epoch, every frame its
 // own slot descriptors (L = 53 slots; odd frames hold 39 labels and 14 padded
