@@ -80,6 +80,29 @@ __attribute__((target("amx-tile,amx-bf16"))) void AmxBlock(const uint16_t* a,
   _tile_stored(3, out + 16 * 32 + 16, 128);
 }
 
+/// The two 16-column halves of a 32-column block of C with `cols` valid
+/// columns: their lane masks and `bias` (zero when null) loaded under them.
+struct BlockColumns {
+  __mmask16 mask0;
+  __mmask16 mask1;
+  __m512 bias0;
+  __m512 bias1;
+};
+
+__attribute__((target("avx512f"), always_inline)) inline BlockColumns
+LoadBlockColumns(int64_t cols, const float* bias) {
+  BlockColumns out;
+  out.mask0 = static_cast<__mmask16>(
+      cols >= 16 ? 0xFFFF : (1u << std::max<int64_t>(cols, 0)) - 1u);
+  out.mask1 = static_cast<__mmask16>(
+      cols >= 32 ? 0xFFFF : (cols > 16 ? (1u << (cols - 16)) - 1u : 0u));
+  out.bias0 = bias != nullptr ? _mm512_maskz_loadu_ps(out.mask0, bias)
+                              : _mm512_setzero_ps();
+  out.bias1 = bias != nullptr ? _mm512_maskz_loadu_ps(out.mask1, bias + 16)
+                              : _mm512_setzero_ps();
+  return out;
+}
+
 /// The block of AmxBlock with AVX512_BF16, stored as StoreBlock stores it:
 /// `dst[r][j] (+)= sum + bias[j]` for `r < rows`, `j < cols`. Per group of 8
 /// rows of A, 16 accumulators (8 rows x the two 16-column blocks of B); each
@@ -104,14 +127,11 @@ __attribute__((target("avx512f,avx512bf16"))) void DpBlock(const uint16_t* a,
   const uint16_t* b0 = b + jb * kp_count * 32;
   const uint16_t* b1 = b0 + kp_count * 32;
   const int64_t pairs = k_pad / 2;
-  const __mmask16 m0 = static_cast<__mmask16>(
-      cols >= 16 ? 0xFFFF : (1u << std::max<int64_t>(cols, 0)) - 1u);
-  const __mmask16 m1 = static_cast<__mmask16>(
-      cols >= 32 ? 0xFFFF : (cols > 16 ? (1u << (cols - 16)) - 1u : 0u));
-  const __m512 bias0 =
-      bias != nullptr ? _mm512_maskz_loadu_ps(m0, bias) : _mm512_setzero_ps();
-  const __m512 bias1 = bias != nullptr ? _mm512_maskz_loadu_ps(m1, bias + 16)
-                                       : _mm512_setzero_ps();
+  const BlockColumns columns = LoadBlockColumns(cols, bias);
+  const __mmask16 m0 = columns.mask0;
+  const __mmask16 m1 = columns.mask1;
+  const __m512 bias0 = columns.bias0;
+  const __m512 bias1 = columns.bias1;
   const int64_t pair_stride = interleaved ? 32 : 2;
   for (int64_t r0 = 0; r0 < rows; r0 += kRows) {
     __m512 acc0[kRows];
@@ -252,14 +272,11 @@ __attribute__((target("avx512f"))) void StoreBlock(const float* src,
                                                    bool accumulate,
                                                    float* dst,
                                                    int64_t ld) {
-  const __mmask16 m0 = static_cast<__mmask16>(
-      cols >= 16 ? 0xFFFF : (1u << std::max<int64_t>(cols, 0)) - 1u);
-  const __mmask16 m1 = static_cast<__mmask16>(
-      cols >= 32 ? 0xFFFF : (cols > 16 ? (1u << (cols - 16)) - 1u : 0u));
-  const __m512 b0 =
-      bias != nullptr ? _mm512_maskz_loadu_ps(m0, bias) : _mm512_setzero_ps();
-  const __m512 b1 = bias != nullptr ? _mm512_maskz_loadu_ps(m1, bias + 16)
-                                    : _mm512_setzero_ps();
+  const BlockColumns columns = LoadBlockColumns(cols, bias);
+  const __mmask16 m0 = columns.mask0;
+  const __mmask16 m1 = columns.mask1;
+  const __m512 b0 = columns.bias0;
+  const __m512 b1 = columns.bias1;
   for (int64_t r = 0; r < rows; ++r) {
     const float* s = src + r * 32;
     float* d = dst + r * ld;

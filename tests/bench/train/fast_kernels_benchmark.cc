@@ -125,16 +125,22 @@ void BM_WeightGrad(benchmark::State& state) {
                          benchmark::Counter::kIsRate);
 }
 
+/// Whether `backend` runs here; skips the benchmark with the reason if not.
+bool Bf16BackendOrSkip(benchmark::State& state, internal::Bf16Backend backend) {
+  const std::vector<internal::Bf16Backend> available =
+      internal::AvailableBf16Backends();
+  if (std::find(available.begin(), available.end(), backend) !=
+      available.end()) {
+    return true;
+  }
+  state.SkipWithError("this bf16 backend is not available on this CPU");
+  return false;
+}
+
 void BM_GemmBf16(benchmark::State& state) {
   const int64_t m = state.range(0), k = state.range(1);
   const auto backend = static_cast<internal::Bf16Backend>(state.range(2));
-  const std::vector<internal::Bf16Backend> available =
-      internal::AvailableBf16Backends();
-  if (std::find(available.begin(), available.end(), backend) ==
-      available.end()) {
-    state.SkipWithError("this bf16 backend is not available on this CPU");
-    return;
-  }
+  if (!Bf16BackendOrSkip(state, backend)) return;
   const int64_t ldx = RoundUp16(k) + 16, ldy = RoundUp16(m) + 16;
   AlignedFloats x, y, w, bias;
   Fill(x, static_cast<size_t>(kRows * ldx + 16), 1);
@@ -170,13 +176,7 @@ void BM_GemmBf16(benchmark::State& state) {
 void BM_WeightGradBf16(benchmark::State& state) {
   const int64_t m = state.range(0), k = state.range(1);
   const auto backend = static_cast<internal::Bf16Backend>(state.range(2));
-  const std::vector<internal::Bf16Backend> available =
-      internal::AvailableBf16Backends();
-  if (std::find(available.begin(), available.end(), backend) ==
-      available.end()) {
-    state.SkipWithError("this bf16 backend is not available on this CPU");
-    return;
-  }
+  if (!Bf16BackendOrSkip(state, backend)) return;
   const int64_t ldy = RoundUp16(m) + 16, ldx = RoundUp16(k) + 16;
   const int64_t kp = RoundUp16(k);
   AlignedFloats dy, x, dw;
