@@ -128,10 +128,6 @@ __attribute__((target("avx512f,avx512bf16"))) void DpBlock(const uint16_t* a,
   const uint16_t* b1 = b0 + kp_count * 32;
   const int64_t pairs = k_pad / 2;
   const BlockColumns columns = LoadBlockColumns(cols, bias);
-  const __mmask16 m0 = columns.mask0;
-  const __mmask16 m1 = columns.mask1;
-  const __m512 bias0 = columns.bias0;
-  const __m512 bias1 = columns.bias1;
   const int64_t pair_stride = interleaved ? 32 : 2;
   for (int64_t r0 = 0; r0 < rows; r0 += kRows) {
     __m512 acc0[kRows];
@@ -139,8 +135,8 @@ __attribute__((target("avx512f,avx512bf16"))) void DpBlock(const uint16_t* a,
     const uint16_t* ar[kRows];
 #pragma GCC unroll 8
     for (int r = 0; r < kRows; ++r) {
-      acc0[r] = bias0;
-      acc1[r] = bias1;
+      acc0[r] = columns.bias0;
+      acc1[r] = columns.bias1;
       const int64_t row = r0 + r;
       ar[r] = interleaved ? a + (row / kTile) * pairs * 32 + 2 * (row % kTile)
                           : a + row * k_pad;
@@ -170,11 +166,11 @@ __attribute__((target("avx512f,avx512bf16"))) void DpBlock(const uint16_t* a,
       __m512 v0 = acc0[r];
       __m512 v1 = acc1[r];
       if (accumulate) {
-        v0 = _mm512_add_ps(v0, _mm512_maskz_loadu_ps(m0, d));
-        v1 = _mm512_add_ps(v1, _mm512_maskz_loadu_ps(m1, d + 16));
+        v0 = _mm512_add_ps(v0, _mm512_maskz_loadu_ps(columns.mask0, d));
+        v1 = _mm512_add_ps(v1, _mm512_maskz_loadu_ps(columns.mask1, d + 16));
       }
-      _mm512_mask_storeu_ps(d, m0, v0);
-      _mm512_mask_storeu_ps(d + 16, m1, v1);
+      _mm512_mask_storeu_ps(d, columns.mask0, v0);
+      _mm512_mask_storeu_ps(d + 16, columns.mask1, v1);
     }
   }
 }
@@ -273,21 +269,17 @@ __attribute__((target("avx512f"))) void StoreBlock(const float* src,
                                                    float* dst,
                                                    int64_t ld) {
   const BlockColumns columns = LoadBlockColumns(cols, bias);
-  const __mmask16 m0 = columns.mask0;
-  const __mmask16 m1 = columns.mask1;
-  const __m512 b0 = columns.bias0;
-  const __m512 b1 = columns.bias1;
   for (int64_t r = 0; r < rows; ++r) {
     const float* s = src + r * 32;
     float* d = dst + r * ld;
-    __m512 v0 = _mm512_add_ps(_mm512_loadu_ps(s), b0);
-    __m512 v1 = _mm512_add_ps(_mm512_loadu_ps(s + 16), b1);
+    __m512 v0 = _mm512_add_ps(_mm512_loadu_ps(s), columns.bias0);
+    __m512 v1 = _mm512_add_ps(_mm512_loadu_ps(s + 16), columns.bias1);
     if (accumulate) {
-      v0 = _mm512_add_ps(v0, _mm512_maskz_loadu_ps(m0, d));
-      v1 = _mm512_add_ps(v1, _mm512_maskz_loadu_ps(m1, d + 16));
+      v0 = _mm512_add_ps(v0, _mm512_maskz_loadu_ps(columns.mask0, d));
+      v1 = _mm512_add_ps(v1, _mm512_maskz_loadu_ps(columns.mask1, d + 16));
     }
-    _mm512_mask_storeu_ps(d, m0, v0);
-    _mm512_mask_storeu_ps(d + 16, m1, v1);
+    _mm512_mask_storeu_ps(d, columns.mask0, v0);
+    _mm512_mask_storeu_ps(d + 16, columns.mask1, v1);
   }
 }
 

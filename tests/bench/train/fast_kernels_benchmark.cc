@@ -50,6 +50,13 @@ void Fill(AlignedFloats& buffer, size_t size, uint32_t seed) {
   for (size_t i = 0; i < size; ++i) buffer.data()[i] = normal(rng);
 }
 
+/// The GFLOP/s counter of a product over all kRows rows: m outputs, k inputs.
+void SetGemmRate(benchmark::State& state, int64_t m, int64_t k) {
+  state.counters["GFLOP/s"] =
+      benchmark::Counter(2.0 * kRows * m * k * state.iterations() / 1e9,
+                         benchmark::Counter::kIsRate);
+}
+
 void BM_Gemm(benchmark::State& state) {
   const int64_t m = state.range(0), k = state.range(1);
   const int sets = static_cast<int>(state.range(2));
@@ -80,9 +87,7 @@ void BM_Gemm(benchmark::State& state) {
     benchmark::DoNotOptimize(ys[s].data());
     s = (s + 1) % sets;
   }
-  state.counters["GFLOP/s"] =
-      benchmark::Counter(2.0 * kRows * m * k * state.iterations() / 1e9,
-                         benchmark::Counter::kIsRate);
+  SetGemmRate(state, m, k);
 }
 
 void BM_WeightGrad(benchmark::State& state) {
@@ -120,9 +125,7 @@ void BM_WeightGrad(benchmark::State& state) {
     }
     benchmark::DoNotOptimize(dw.data());
   }
-  state.counters["GFLOP/s"] =
-      benchmark::Counter(2.0 * kRows * m * k * state.iterations() / 1e9,
-                         benchmark::Counter::kIsRate);
+  SetGemmRate(state, m, k);
 }
 
 /// Whether `backend` runs here; skips the benchmark with the reason if not.
@@ -168,9 +171,7 @@ void BM_GemmBf16(benchmark::State& state) {
     benchmark::DoNotOptimize(y.data());
   }
   state.SetLabel(internal::Bf16BackendName(backend));
-  state.counters["GFLOP/s"] =
-      benchmark::Counter(2.0 * kRows * m * k * state.iterations() / 1e9,
-                         benchmark::Counter::kIsRate);
+  SetGemmRate(state, m, k);
 }
 
 void BM_WeightGradBf16(benchmark::State& state) {
@@ -204,9 +205,7 @@ void BM_WeightGradBf16(benchmark::State& state) {
     benchmark::DoNotOptimize(dw.data());
   }
   state.SetLabel(internal::Bf16BackendName(backend));
-  state.counters["GFLOP/s"] =
-      benchmark::Counter(2.0 * kRows * m * k * state.iterations() / 1e9,
-                         benchmark::Counter::kIsRate);
+  SetGemmRate(state, m, k);
 }
 
 /// One head's operands: q (n x dh, stride 3 * 144 as in [q | k | v]), k and v
