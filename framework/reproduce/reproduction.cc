@@ -469,6 +469,10 @@ ReproductionPlan PlanReproduction(const AblationSpec& spec,
   return plan;
 }
 
+fs::path ProgressReportDir(const ReproductionPlan& plan) {
+  return plan.dir / "report";
+}
+
 void WriteCommandsScript(const ReproductionPlan& plan,
                          const fs::path& working_dir) {
   std::ostringstream sh;

@@ -19,6 +19,9 @@
 //   <root>/<name>-<budget hash>/jobs.yaml, jobs.csv   the ledger (one job
 //                                                     per model)
 //   <root>/<name>-<budget hash>/commands.sh           every command, in order
+//   <root>/<name>-<budget hash>/report/               the table so far,
+//                                                     rewritten after every
+//                                                     model while it runs
 //
 // The ledger is keyed by the budget too: the same table under another budget
 // (another layout, scale or length) is another set of models with its own
@@ -97,6 +100,12 @@ ReproductionPlan PlanReproduction(const AblationSpec& spec,
 /// Writes `<plan.dir>/commands.sh`: every command of the plan, in order.
 void WriteCommandsScript(const ReproductionPlan& plan,
                          const std::filesystem::path& working_dir);
+
+/// Where a running reproduction rewrites its table after every model:
+/// `<plan.dir>/report`, beside the ledger and outside the tracked tree, so
+/// that the trainings it starts later record the checkout as it was (a table
+/// rewritten in `results/` would make each of them record a dirty tree).
+std::filesystem::path ProgressReportDir(const ReproductionPlan& plan);
 
 struct ReproductionRun {
   int models_done = 0;

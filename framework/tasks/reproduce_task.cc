@@ -98,15 +98,18 @@ class ReproduceTask : public Task {
 
     const ReportContext context = MakeContext(ctx, reproduction, plan);
     // The table is rewritten after every model, so an interrupted
-    // reproduction leaves a (marked) partial table behind.
-    auto write_report = [&]() {
+    // reproduction leaves a (marked) partial table behind. While models
+    // train it goes to the ledger directory, outside the tracked tree: a
+    // report rewritten in results/ would make every later training of this
+    // reproduction record the checkout as dirty (its provenance's git diff
+    // holding only the report). results/ gets the table once, at the end.
+    auto write_report = [&](const fs::path& results) {
       ReportContext now = context;
       const ReproductionRun ledger = SummarizeLedger(plan);
       now.compute_s = ledger.compute_s;
       now.models_done = ledger.models_done;
       now.trained_on = TrainingMachines(plan);
       const std::vector<CellResult> cells = CollectResults(spec, plan);
-      const fs::path results = options_.results_dir;
       CreateDirectories(results);
       WriteResultsCsv(spec, cells, results / (spec.name + ".csv"));
       WriteSeedsCsv(spec, cells, results / (spec.name + "_seeds.csv"));
@@ -119,13 +122,22 @@ class ReproduceTask : public Task {
           spec, plan, 5, results / (spec.name + "_worst_frames.md"));
       return now;
     };
+    const fs::path progress = ProgressReportDir(plan);
+    auto write_progress = [&] { write_report(progress); };
+    if (options_.mode == "run") {
+      SOMA_LOG(INFO,
+               "reproduce {}: the table so far is rewritten after every model "
+               "in {}; {} gets it when the run ends",
+               spec.name,
+               progress.string(),
+               options_.results_dir);
+    }
     const ReproductionRun run =
         options_.mode != "run" ? SummarizeLedger(plan)
-        : slurm                ? RunReproductionOnSlurm(
-                      plan, reproduction, *slurm, [&] { write_report(); })
-                : RunReproduction(
-                      plan, reproduction, true, [&] { write_report(); });
-    const ReportContext final_context = write_report();
+        : slurm
+            ? RunReproductionOnSlurm(plan, reproduction, *slurm, write_progress)
+            : RunReproduction(plan, reproduction, true, write_progress);
+    const ReportContext final_context = write_report(options_.results_dir);
     SOMA_LOG(INFO,
              "reproduce {}: {} of {} models done; wrote {}/{}.md and .csv",
              spec.name,

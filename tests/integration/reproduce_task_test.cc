@@ -62,8 +62,15 @@ fs::path LedgerDir(const fs::path& root, const std::string& name) {
   return dirs.empty() ? root / name : dirs[0];
 }
 
-/// `soma reproduce <name>` on `dir`'s ablations/ and data/ with tiny models
-/// (1 epoch of 64 frames); the run dir is the last argument.
+/// Tiny models: 1 epoch of 64 frames, d_model 10, one layer.
+constexpr char kTinyBudget[] =
+    "task.budget=[\"scale=cpu\",\"train.max_epochs=1\","
+    "\"train.train_frames=64\",\"train.val_frames=32\","
+    "\"train.batch_size=32\",\"model.d_model=10\",\"model.hidden=16\","
+    "\"model.backbone.num_layers=1\"]";
+
+/// `soma reproduce <name>` on `dir`'s ablations/ and data/ with tiny models;
+/// the run dir is the last argument.
 std::vector<std::string> TinyReproduceArgs(const fs::path& dir,
                                            const std::string& name) {
   return {"reproduce",
@@ -72,10 +79,7 @@ std::vector<std::string> TinyReproduceArgs(const fs::path& dir,
           "task.root=" + (dir / "root").string(),
           "task.results_dir=" + (dir / "results").string(),
           "task.data_dir=" + (dir / "data").string(),
-          "task.budget=[\"scale=cpu\",\"train.max_epochs=1\","
-          "\"train.train_frames=64\",\"train.val_frames=32\","
-          "\"train.batch_size=32\",\"model.d_model=10\",\"model.hidden=16\","
-          "\"model.backbone.num_layers=1\"]",
+          std::string(kTinyBudget),
           "task.jobs=2",
           "hydra.run.dir=" + (dir / "run").string()};
 }
@@ -118,6 +122,15 @@ TEST(ReproduceTask, RunsTrainsEvaluatesAndResumes) {
     EXPECT_LE(e.metrics.at("short/acc_mean"), 1.0) << e.dir;
   }
   EXPECT_TRUE(fs::exists(ledger_dir / "commands.sh"));
+  // While models trained, the table went to the ledger directory (outside
+  // the tracked tree, so later trainings record a clean checkout), and
+  // results/ got the same table once, at the end.
+  const fs::path progress = ledger_dir / "report/mini.md";
+  ASSERT_TRUE(fs::exists(progress));
+  EXPECT_EQ(ReadFile(progress), md);
+  EXPECT_THAT(ReadFile(dir / "run/soma.log"),
+              HasSubstr("the table so far is rewritten after every model in " +
+                        (ledger_dir / "report").string()));
 
   // Resuming: every command is done, nothing runs again.
   const auto stamp =
