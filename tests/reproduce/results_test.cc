@@ -252,7 +252,7 @@ TEST(ResultsTest, ReadmeQuotesTable5AsItsReportsSayIt) {
   EXPECT_THAT(readme,
               MatchesSomewhere(Cell(t5, "target_layout", "cmu") + "% against " +
                                Cell(t5, "base", "cmu") + "% on the CMU take"));
-  // The Intel-trained retraining of the same command.
+  // The same command retrained for results/hdm05_layout/.
   EXPECT_THAT(readme,
               MatchesSomewhere(
                   "gives " +
@@ -266,7 +266,7 @@ TEST(ResultsTest, ReadmeQuotesTable5AsItsReportsSayIt) {
   EXPECT_THAT(
       results,
       MatchesSomewhere(
-          "Intel machine gives " +
+          "motion library gives " +
           Cell("results/hdm05_layout/fig_c1.csv", "layers_4", "hdm05")));
 }
 
