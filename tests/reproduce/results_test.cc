@@ -160,6 +160,17 @@ std::string ResultsReadme() {
 TEST(ResultsTest, NoCommittedResultNamesADirtyCommit) {
   const std::regex dirty(R"([0-9a-f]{7,40}(…|\.\.\.)?-dirty)");
   const fs::path results = testing::SourceDir() / "results";
+  // What git ignores under results/ (the reproductions' ledgers and runs,
+  // fitted layouts), from .gitignore's "/results/<dir>" lines.
+  std::vector<std::string> ignored;
+  std::istringstream gitignore(ReadFile(testing::SourceDir() / ".gitignore"));
+  for (std::string line; std::getline(gitignore, line);) {
+    if (line.rfind("/results/", 0) != 0) continue;
+    line = line.substr(9);
+    if (!line.empty() && line.back() == '/') line.pop_back();
+    ignored.push_back(line);
+  }
+  EXPECT_FALSE(ignored.empty()) << ".gitignore ignores nothing under results/";
   int files = 0;
   for (const auto& entry : fs::recursive_directory_iterator(results)) {
     const fs::path& path = entry.path();
@@ -168,13 +179,10 @@ TEST(ResultsTest, NoCommittedResultNamesADirtyCommit) {
         (ext != ".md" && ext != ".csv" && ext != ".json" && ext != ".yaml")) {
       continue;
     }
-    // Ignored by git: the reproductions' ledgers and runs, fitted layouts.
     const std::string relative = fs::relative(path, results).string();
-    if (relative.rfind("reproduce/", 0) == 0 ||
-        relative.rfind("layouts/", 0) == 0 || relative.rfind("runs/", 0) == 0 ||
-        relative.rfind("multirun/", 0) == 0 ||
-        relative.rfind("noise_bank/", 0) == 0 ||
-        relative.rfind("models/", 0) == 0) {
+    if (std::any_of(ignored.begin(), ignored.end(), [&](const std::string& d) {
+          return relative.rfind(d + "/", 0) == 0;
+        })) {
       continue;
     }
     ++files;
