@@ -25,8 +25,16 @@ BUDGET=(scale=cpu)
 RUNS=results/reproduce/finetune
 OUT=results/any_layout_finetune.csv
 
-models=(results/reproduce/models/model-soma_any_layout_synth-layout_sampler-mixed-*)
-if [[ ${#models[@]} -ne 1 || ! -d ${models[0]} ]]; then
+# The variant any_layout's directory: the other mixed variants
+# (any_layout_perturbed*) share its name's prefix and set perturbed_layouts.
+models=()
+for dir in results/reproduce/models/model-soma_any_layout_synth-layout_sampler-mixed-*; do
+  overrides=$(cat "$dir"/seed*/.hydra/overrides.yaml 2>/dev/null || true)
+  if [[ -d $dir && $overrides != *perturbed_layouts* ]]; then
+    models+=("$dir")
+  fi
+done
+if [[ ${#models[@]} -ne 1 ]]; then
   echo "any_layout_finetune: expected one any_layout model directory" \
     "(results/reproduce/models/model-soma_any_layout_synth-layout_sampler-mixed-*)," \
     "found ${#models[@]}: run soma reproduce any_layout first" >&2

@@ -36,6 +36,35 @@ void LayoutSamplerOptions::Validate() const {
          std::to_string(random_layouts),
          "random_layouts >= 0");
   }
+  if (perturbed_layouts < 0) {
+    fail("perturbed_layouts",
+         std::to_string(perturbed_layouts),
+         "perturbed_layouts >= 0");
+  }
+  if (perturbed_layouts > 0) {
+    if (layouts.empty()) {
+      fail("perturbed_layouts",
+           std::to_string(perturbed_layouts),
+           "listed layouts to perturb (layouts is empty)");
+    }
+    if (!(perturb_keep > 0 && perturb_keep <= 1)) {
+      fail("perturb_keep",
+           fmt::format("{}", perturb_keep),
+           "0 < perturb_keep <= 1");
+    }
+    if (perturb_rings < 0 || perturb_rings > 8) {
+      fail("perturb_rings",
+           std::to_string(perturb_rings),
+           "0 <= perturb_rings <= 8");
+    }
+  }
+  if (random_layouts > 0 || perturbed_layouts > 0) {
+    if (!(random_share >= 0 && random_share <= 1)) {
+      fail("random_share",
+           fmt::format("{}", random_share),
+           "0 <= random_share <= 1");
+    }
+  }
   if (random_layouts > 0) {
     const std::string markers =
         fmt::format("[{}, {}]", random_min_markers, random_max_markers);
@@ -49,11 +78,6 @@ void LayoutSamplerOptions::Validate() const {
       fail("random_min_spacing",
            fmt::format("{}", random_min_spacing),
            "random_min_spacing >= 0");
-    }
-    if (!(random_share >= 0 && random_share <= 1)) {
-      fail("random_share",
-           fmt::format("{}", random_share),
-           "0 <= random_share <= 1");
     }
   }
 }
@@ -79,16 +103,21 @@ LayoutSamplerOptions DecodeLayoutSamplerOptions(const ConfigNode& node) {
   reader.Read("random_min_spacing", &options.random_min_spacing);
   reader.Read("random_share", &options.random_share);
   reader.Read("random_seed", &options.random_seed);
+  reader.Read("perturbed_layouts", &options.perturbed_layouts);
+  reader.Read("perturb_keep", &options.perturb_keep);
+  reader.Read("perturb_rings", &options.perturb_rings);
   // The name says what the sampler draws from.
   const bool listed = !options.layouts.empty();
-  const bool pool = options.random_layouts > 0;
+  const bool pool = options.random_layouts > 0 || options.perturbed_layouts > 0;
   reader.Check("random_layouts",
                name != "builtin" || !pool,
-               "random_layouts == 0 for name builtin (mixed or random draw "
-               "random layouts)");
+               "random_layouts == 0 and perturbed_layouts == 0 for name "
+               "builtin (mixed or random draw from a pool)");
   reader.Check("random_layouts",
                name == "builtin" || pool,
-               "random_layouts > 0 for name mixed or random");
+               name == "random" ? "random_layouts > 0 for name random"
+                                : "random_layouts > 0 or perturbed_layouts > "
+                                  "0 for name mixed");
   reader.Check("layouts",
                name == "random" ? !listed : listed,
                name == "random" ? "[] for name random (mixed: listed layouts "
@@ -183,6 +212,56 @@ MarkerLayout MakeRandomLayout(const BodyModel& body,
   return layout;
 }
 
+MarkerLayout MakePerturbedLayout(
+    const MarkerLayout& layout,
+    const std::vector<std::vector<int>>& neighbours,
+    double keep,
+    int rings,
+    std::string_view prefix,
+    Rng* rng) {
+  if (layout.markers.empty()) {
+    throw ConfigError("MakePerturbedLayout: the layout has no markers");
+  }
+  std::vector<int> kept;
+  for (int m = 0; m < layout.num_markers(); ++m) {
+    if (rng->Bernoulli(keep)) kept.push_back(m);
+  }
+  if (kept.empty()) {
+    kept.push_back(
+        static_cast<int>(rng->UniformInt(0, layout.num_markers() - 1)));
+  }
+  MarkerLayout out;
+  out.surface_model_type = layout.surface_model_type;
+  std::vector<int> taken;
+  for (const int m : kept) {
+    const MarkerLayout::Marker& marker = layout.markers[m];
+    const int vertex = marker.vertex_ids.front();
+    if (vertex < 0 || vertex >= static_cast<int>(neighbours.size())) {
+      throw ShapeError(fmt::format(
+          "MakePerturbedLayout: marker '{}' is on vertex {} of a mesh of {} "
+          "vertices",
+          marker.label,
+          vertex,
+          neighbours.size()));
+    }
+    std::vector<int> candidates = NRing(neighbours, vertex, rings);
+    candidates.push_back(vertex);
+    std::erase_if(candidates, [&](int v) {
+      return std::find(taken.begin(), taken.end(), v) != taken.end();
+    });
+    if (candidates.empty()) continue;  // its whole ring is taken: dropped
+    const int moved = candidates[static_cast<size_t>(
+        rng->UniformInt(0, static_cast<int64_t>(candidates.size()) - 1))];
+    taken.push_back(moved);
+    MarkerLayout::Marker copy = marker;
+    copy.label = fmt::format("{}_{}", prefix, marker.label);
+    copy.vertex_ids = {moved};
+    out.markers.push_back(std::move(copy));
+  }
+  out.Sort();
+  return out;
+}
+
 LayoutSampler::LayoutSampler(const BodyModel& body,
                              LayoutSamplerOptions options)
     : options_(std::move(options)) {
@@ -215,6 +294,31 @@ LayoutSampler::LayoutSampler(const BodyModel& body,
                                            fmt::format("random{:03d}", i),
                                            &rng);
     AddLayout(vertices, std::move(layout));
+  }
+  if (options_.perturbed_layouts > 0) {
+    const std::vector<std::vector<int>> neighbours = VertexNeighbours(
+        static_cast<int>(body.template_vertices.cols()), body.faces);
+    const Rng perturbed(Rng(options_.random_seed).Stream("perturbed_layouts"));
+    const int listed = num_listed();
+    for (int i = 0; i < options_.perturbed_layouts; ++i) {
+      Rng rng = perturbed.Stream(static_cast<uint64_t>(i));
+      const int source = static_cast<int>(rng.UniformInt(0, listed - 1));
+      MarkerLayout layout =
+          MakePerturbedLayout(layouts_[source],
+                              neighbours,
+                              options_.perturb_keep,
+                              options_.perturb_rings,
+                              fmt::format("perturbed{:03d}", i),
+                              &rng);
+      AddLayout(vertices, std::move(layout));
+    }
+  }
+  const int rows = row_offsets_.back() + layouts_.back().num_markers();
+  if (rows > 32767) {
+    throw ConfigError(fmt::format(
+        "layout_sampler: the layouts hold {} markers in all, more than the "
+        "32767 int16 slot rows (fewer random_layouts or perturbed_layouts)",
+        rows));
   }
 }
 
@@ -294,7 +398,14 @@ SlotTable LayoutSampler::BuildSlotTable() const {
   SlotTable table;
   table.width = descriptor_width_;
   table.layouts = options_.layouts;
-  if (num_layouts() > num_listed()) table.layouts.push_back("random");
+  // The pool is one group, named after what it holds.
+  if (num_layouts() > num_listed()) {
+    const bool random = options_.random_layouts > 0;
+    const bool perturbed = options_.perturbed_layouts > 0;
+    table.layouts.push_back(random && perturbed ? "pool"
+                            : random            ? "random"
+                                                : "perturbed");
+  }
   for (int k = 0; k < num_layouts(); ++k) {
     const Eigen::MatrixXf& q = descriptors_[k];
     for (Eigen::Index m = 0; m < q.rows(); ++m) {

@@ -7,7 +7,12 @@
 //   - a pool of `random_layouts` random surface layouts (MakeRandomLayout:
 //     30-70 markers on distinct vertices anywhere on the body's skin but the
 //     soles), built once from `random_seed`, so that the model learns labels
-//     as places on the body rather than the names of a few marker sets.
+//     as places on the body rather than the names of a few marker sets, and
+//   - `perturbed_layouts` perturbed copies of the listed layouts in the same
+//     pool (MakePerturbedLayout: each marker kept with probability
+//     `perturb_keep` and moved to a random vertex of its `perturb_rings`-ring),
+//     the way a lab's marker set differs from the textbook one: a subset,
+//     each marker a few centimetres off.
 // With both, a block takes the pool with probability `random_share`. The
 // layout's markers fill the first K of L_max slots in a random order (the
 // model must not learn the order of a layout), the rest are padded.
@@ -52,10 +57,16 @@ struct LayoutSamplerOptions {
   /// Least distance between two markers of a random layout, metres, on the
   /// rest body (real layouts: 4-10 cm between neighbours).
   double random_min_spacing = 0.04;
-  /// Probability that a block takes a random layout when there are listed
-  /// layouts too.
+  /// Probability that a block takes a layout of the pool (random and
+  /// perturbed) when there are listed layouts too.
   double random_share = 0.5;
-  uint64_t random_seed = 0;   // seed of the pool (not of the draws)
+  uint64_t random_seed = 0;  // seed of the pool (not of the draws)
+  /// Perturbed copies of the listed layouts in the pool (0: none).
+  int perturbed_layouts = 0;
+  /// Probability that a perturbed copy keeps a marker of its listed layout.
+  double perturb_keep = 0.8;
+  /// A kept marker moves to a uniform vertex of its n-ring (itself included).
+  int perturb_rings = 3;
   int block_size = 32;        // frames per placement block (REFERENCE 3.3)
   bool shuffle_slots = true;  // random slot order per block
   /// Block b gets group b mod G (the listed layouts, then the pool as one
@@ -68,7 +79,8 @@ struct LayoutSamplerOptions {
 /// Decodes a `synth.layout_sampler` node (`name`: builtin, mixed or random;
 /// `layouts`, `max_labels`, `shuffle_slots`, `random_layouts`,
 /// `random_markers: [min, max]`, `random_min_spacing`, `random_share`,
-/// `random_seed`; unknown keys and other names are ConfigErrors). The block
+/// `random_seed`, `perturbed_layouts`, `perturb_keep`, `perturb_rings`;
+/// unknown keys and other names are ConfigErrors). The block
 /// size is the synthesizer's placement block.
 LayoutSamplerOptions DecodeLayoutSamplerOptions(const ConfigNode& node);
 
@@ -85,9 +97,23 @@ MarkerLayout MakeRandomLayout(const BodyModel& body,
                               std::string_view prefix,
                               Rng* rng);
 
+/// A perturbed copy of `layout` on `body`: each marker kept with probability
+/// `keep` (at least one is), moved to a uniform vertex of the `rings`-ring of
+/// its first vertex (the vertex itself included) that no other marker of the
+/// copy holds, its type and skin distance kept, labelled "<prefix>_<label>".
+/// `neighbours` is VertexNeighbours of the body's mesh.
+MarkerLayout MakePerturbedLayout(
+    const MarkerLayout& layout,
+    const std::vector<std::vector<int>>& neighbours,
+    double keep,
+    int rings,
+    std::string_view prefix,
+    Rng* rng);
+
 /// One block's layout and the order of its markers in the slots.
 struct LayoutDraw {
-  /// Index into layout(): the listed layouts, then the random pool.
+  /// Index into layout(): the listed layouts, then the pool (the random
+  /// layouts, then the perturbed ones).
   int layout = 0;
   /// Slot -> marker index in that layout, -1 for a padded slot (L_max).
   std::vector<int> slot_marker;
@@ -121,7 +147,7 @@ class LayoutSampler {
   /// The most markers of a listed layout.
   int max_layout_markers() const;
 
-  /// Listed layouts and random ones.
+  /// Listed layouts and the pool's.
   int num_layouts() const { return static_cast<int>(layouts_.size()); }
   int num_listed() const { return static_cast<int>(options_.layouts.size()); }
   /// Group of layout k: k for a listed layout, num_listed() for the pool.

@@ -1,6 +1,7 @@
 #include "framework/synth/layout_sampler.h"
 
 #include "framework/body/body_model.h"
+#include "framework/body/marker_layout.h"
 #include "framework/body/vertex_descriptors.h"
 #include "framework/config/yaml_io.h"
 #include "framework/core/error.h"
@@ -284,6 +285,132 @@ TEST(LayoutSampler, CycledGroupsGiveThePoolItsTurn) {
   const LayoutSampler pool(ProceduralBody(), options);
   for (int64_t block = 0; block < 12; ++block) {
     EXPECT_EQ(pool.group(pool.Draw(4, block).layout), 0);
+  }
+}
+
+TEST(MakePerturbedLayout, KeepsMovesAndRenamesTheListedMarkers) {
+  const BodyModel& body = ProceduralBody();
+  const MarkerLayout soma53 = MakeBuiltinLayout(body, "soma53");
+  const std::vector<std::vector<int>> neighbours = VertexNeighbours(
+      static_cast<int>(body.template_vertices.cols()), body.faces);
+  const auto find = [&](const std::string& label) {
+    for (const MarkerLayout::Marker& marker : soma53.markers) {
+      if (label == "p_" + marker.label) return &marker;
+    }
+    return static_cast<const MarkerLayout::Marker*>(nullptr);
+  };
+  // keep 1, 0 rings: the same markers on the same vertices, renamed.
+  Rng same(1);
+  const MarkerLayout copy =
+      MakePerturbedLayout(soma53, neighbours, 1.0, 0, "p", &same);
+  ASSERT_EQ(copy.num_markers(), soma53.num_markers());
+  for (const MarkerLayout::Marker& marker : copy.markers) {
+    const MarkerLayout::Marker* source = find(marker.label);
+    ASSERT_NE(source, nullptr) << marker.label;
+    EXPECT_EQ(marker.vertex_ids.front(), source->vertex_ids.front());
+    EXPECT_EQ(marker.type, source->type);
+    EXPECT_EQ(marker.distance_from_skin, source->distance_from_skin);
+  }
+  // 2 rings: every marker on its source's 2-ring or vertex, no two on one
+  // vertex, most of them moved; keep 0.5 drops about half.
+  int moved = 0;
+  int kept = 0;
+  for (uint64_t seed = 0; seed < 20; ++seed) {
+    Rng rng(seed);
+    const MarkerLayout perturbed =
+        MakePerturbedLayout(soma53, neighbours, 0.5, 2, "p", &rng);
+    kept += perturbed.num_markers();
+    std::set<int> vertices;
+    for (const MarkerLayout::Marker& marker : perturbed.markers) {
+      const MarkerLayout::Marker* source = find(marker.label);
+      ASSERT_NE(source, nullptr) << marker.label;
+      ASSERT_EQ(marker.vertex_ids.size(), 1u);
+      const int from = source->vertex_ids.front();
+      const int to = marker.vertex_ids.front();
+      std::vector<int> ring = NRing(neighbours, from, 2);
+      ring.push_back(from);
+      EXPECT_NE(std::find(ring.begin(), ring.end(), to), ring.end())
+          << marker.label;
+      EXPECT_TRUE(vertices.insert(to).second) << marker.label;
+      EXPECT_EQ(marker.type, source->type);
+      moved += to != from ? 1 : 0;
+    }
+  }
+  const double share = kept / (20.0 * soma53.num_markers());
+  EXPECT_NEAR(share, 0.5, 0.1);
+  EXPECT_GT(moved, kept * 3 / 4);
+  // A copy always keeps one marker.
+  Rng few(3);
+  EXPECT_EQ(
+      MakePerturbedLayout(soma53, neighbours, 1e-9, 1, "p", &few).num_markers(),
+      1);
+}
+
+TEST(LayoutSampler, PerturbedCopiesOfTheListedLayoutsJoinThePool) {
+  LayoutSamplerOptions options;
+  options.layouts = {"soma53"};
+  options.max_labels = 64;
+  options.perturbed_layouts = 10;
+  options.random_share = 0.5;
+  const LayoutSampler sampler(ProceduralBody(), options);
+  ASSERT_EQ(sampler.num_layouts(), 1 + 10);
+  const int listed = sampler.layout(0).num_markers();
+  std::set<int> sizes;
+  for (int k = 1; k < 11; ++k) {
+    EXPECT_EQ(sampler.group(k), 1);
+    EXPECT_LE(sampler.layout(k).num_markers(), listed);
+    EXPECT_EQ(sampler.layout(k).markers.front().label.rfind("perturbed", 0),
+              0u);
+    sizes.insert(sampler.layout(k).num_markers());
+  }
+  EXPECT_GT(sizes.size(), 2u);
+  EXPECT_EQ(sampler.BuildSlotTable().layouts,
+            (std::vector<std::string>{"soma53", "perturbed"}));
+  // A function of the pool's seed; with random layouts too the pool is
+  // "pool", the random layouts first.
+  const LayoutSampler again(ProceduralBody(), options);
+  options.random_seed = 4;
+  const LayoutSampler reseeded(ProceduralBody(), options);
+  int differ = 0;
+  for (int k = 1; k < 11; ++k) {
+    EXPECT_EQ(sampler.layout(k), again.layout(k));
+    differ += sampler.layout(k) == reseeded.layout(k) ? 0 : 1;
+  }
+  EXPECT_GT(differ, 5);
+  options.random_layouts = 3;
+  options.random_min_markers = 20;
+  options.random_max_markers = 40;
+  const LayoutSampler both(ProceduralBody(), options);
+  ASSERT_EQ(both.num_layouts(), 1 + 3 + 10);
+  EXPECT_EQ(both.layout(1).markers.front().label.rfind("random", 0), 0u);
+  EXPECT_EQ(both.layout(4).markers.front().label.rfind("perturbed", 0), 0u);
+  EXPECT_EQ(both.BuildSlotTable().layouts,
+            (std::vector<std::string>{"soma53", "pool"}));
+}
+
+TEST(LayoutSamplerOptions, DecodesThePerturbedLayoutsAndRejectsBadValues) {
+  const LayoutSamplerOptions options = DecodeLayoutSamplerOptions(
+      Yaml("{name: mixed, layouts: [soma53], perturbed_layouts: 5, "
+           "perturb_keep: 0.7, perturb_rings: 3}"));
+  EXPECT_EQ(options.random_layouts, 0);
+  EXPECT_EQ(options.perturbed_layouts, 5);
+  EXPECT_EQ(options.perturb_keep, 0.7);
+  EXPECT_EQ(options.perturb_rings, 3);
+  for (const char* bad : {
+           "{name: builtin, perturbed_layouts: 3}",
+           "{name: random, layouts: [], perturbed_layouts: 3}",
+           "{name: mixed, perturbed_layouts: -1}",
+           "{name: mixed, perturbed_layouts: 3, perturb_keep: 0}",
+           "{name: mixed, perturbed_layouts: 3, perturb_keep: 1.5}",
+           "{name: mixed, perturbed_layouts: 3, perturb_rings: -1}",
+           "{name: mixed, perturbed_layouts: 3, perturb_rings: 9}",
+       }) {
+    try {
+      DecodeLayoutSamplerOptions(Yaml(bad));
+      ADD_FAILURE() << "no error for " << bad;
+    } catch (const ConfigError& e) {
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << bad;
+    }
   }
 }
 
