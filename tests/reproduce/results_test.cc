@@ -319,6 +319,18 @@ TEST(ResultsTest, ReadmeQuotesTable1AtTheHeadlineBudgetAsItsReportSaysIt) {
                                 {"train B\\+C\\+G ", "train_b_c_g"}});
 }
 
+// Fig. C.3 at the same budget: each row's accuracy on the HDM05 take as
+// B+C+G.
+TEST(ResultsTest, ReadmeQuotesFigC3AtTheHeadlineBudgetAsItsReportSaysIt) {
+  ExpectReadmeQuotesAccuracies(
+      "results/headline_budget/fig_c3.csv",
+      "hdm05",
+      {{"B\\+C\\+G, base ", "base"},
+       {"spherical-Gaussian ghosts ", "ghosts60_gaussian"},
+       {"uniform ghosts ", "ghosts60_uniform"},
+       {"skewed-Gaussian ghosts ", "ghosts60_skewed"}});
+}
+
 // Issue #25 item 3: the README's any-layout paragraph quotes the report
 // (conditioned and per-layout models, bold) and the fine-tuning table (the
 // mean over its seeds per target and epoch count, in epoch order).
