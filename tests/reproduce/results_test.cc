@@ -334,6 +334,28 @@ TEST(ResultsTest, ReadmeQuotesFigC3AtTheHeadlineBudgetAsItsReportSaysIt) {
 // Issue #25 item 3: the README's any-layout paragraph quotes the report
 // (conditioned and per-layout models, bold) and the fine-tuning table (the
 // mean over its seeds per target and epoch count, in epoch order).
+// The perturbed-layout variants (results/any_layout_perturbed/, seed 0):
+// the README quotes each on each take, bold.
+TEST(ResultsTest, ReadmeQuotesThePerturbedLayoutRunAsItsReportSaysIt) {
+  const std::string readme = Readme();
+  for (const std::string variant :
+       {"any_layout_perturbed_only", "any_layout_perturbed"}) {
+    for (const std::string test : {"hdm05", "cmu", "pig"}) {
+      EXPECT_THAT(
+          readme,
+          MatchesSomewhere("\\*\\*" +
+                           Cell("results/any_layout_perturbed/any_layout.csv",
+                                variant,
+                                test,
+                                "acc",
+                                2,
+                                false) +
+                           "%\\*\\*"))
+          << variant << " on " << test;
+    }
+  }
+}
+
 TEST(ResultsTest, ReadmeQuotesTheAnyLayoutRunAsItsReportsSayIt) {
   const std::string readme = Readme();
   for (const auto& [variant, test] :
