@@ -9,6 +9,7 @@
 
 #include <cmath>
 #include <limits>
+#include <numbers>
 #include <string>
 #include <string_view>
 
@@ -42,6 +43,23 @@ void LabelEncoderOptions::Validate() const {
             num_heads,
             fmt::format("d_model ({}) % num_heads == 0", d_model));
   }
+  if (fourier_bands < 0 || fourier_bands > kMaxFourierBands) {
+    Invalid("fourier_bands",
+            fourier_bands,
+            fmt::format("0 <= fourier_bands <= {}", kMaxFourierBands));
+  }
+}
+
+torch::Tensor WithFourierFeatures(const torch::Tensor& descriptors,
+                                  int64_t bands) {
+  if (bands == 0) return descriptors;
+  const torch::Tensor frequencies =
+      torch::pow(2.0, torch::arange(bands, descriptors.options())) *
+      std::numbers::pi;  // F
+  const torch::Tensor angles =
+      (descriptors.narrow(-1, 0, 3).unsqueeze(-1) * frequencies)
+          .flatten(-2);  // ... x 3F
+  return torch::cat({descriptors, angles.sin(), angles.cos()}, -1);
 }
 
 torch::Tensor LayoutSlotDescriptors(const BodyModel& body,
@@ -130,7 +148,7 @@ LabelEncoderImpl::LabelEncoderImpl(const LabelEncoderOptions& options)
     : options_(options) {
   options_.Validate();
   torch::nn::Sequential mlp;
-  input = torch::nn::Linear(options_.descriptor_width, options_.hidden);
+  input = torch::nn::Linear(options_.InputWidth(), options_.hidden);
   output = torch::nn::Linear(options_.hidden, options_.d_model);
   mlp->push_back(input);
   mlp->push_back(torch::nn::ReLU());
@@ -152,7 +170,9 @@ torch::Tensor LabelEncoderImpl::forward(const torch::Tensor& descriptors,
   const torch::Tensor q =
       descriptors.masked_fill(mask.logical_not().unsqueeze(-1), 0.0);
   torch::Tensor x =
-      output(torch::relu(input(q))).transpose(1, 2).contiguous();  // B D L
+      output(torch::relu(input(WithFourierFeatures(q, options_.fourier_bands))))
+          .transpose(1, 2)
+          .contiguous();  // B D L
   for (MultiHeadAttention& layer : layers) {
     x = x + MaskedAttentionUpdate(*layer, x, mask);
   }

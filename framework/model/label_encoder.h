@@ -3,7 +3,8 @@
 // (framework/body/vertex_descriptors.h) -> label embeddings E, and the score
 // head that matches point features against them.
 //
-//   LabelEncoder          q_l (B x L x Q) -> MLP (Q -> hidden -> D) -> k_l
+//   LabelEncoder          q_l (B x L x Q) -> [q_l, Fourier features of its
+//                         rest position] -> MLP (Q + 6F -> hidden -> D) -> k_l
 //                         masked self-attention layers over the L label
 //                         tokens (the MultiHeadAttention layers of the point
 //                         backbone, no positional input) -> E (B x D x L).
@@ -43,8 +44,26 @@ struct LabelEncoderOptions {
   int64_t hidden = 256;          // the MLP's hidden width
   int64_t num_layers = 2;        // k_l label self-attention layers
   int64_t num_heads = 5;         // heads; must divide d_model
-  void Validate() const;         // ConfigError on violation
+  /// F: the rest position p (descriptor columns 0-2, body frame / height)
+  /// also enters the MLP as sin(2^k pi p), cos(2^k pi p), k = 0..F-1 (6F
+  /// more inputs; periods from 2 body heights down to 2^(1-F)), so that
+  /// labels a few centimetres apart get separable embeddings. 0 = none.
+  int64_t fourier_bands = 0;
+  void Validate() const;  // ConfigError on violation
+  /// The MLP's input width: descriptor_width + 6 * fourier_bands.
+  int64_t InputWidth() const { return descriptor_width + 6 * fourier_bands; }
 };
+
+/// Upper bound of LabelEncoderOptions::fourier_bands (the finest period,
+/// 2^-15 body heights, is far below any marker spacing).
+inline constexpr int64_t kMaxFourierBands = 16;
+
+/// `descriptors` `... x Q` -> `... x (Q + 6F)`: the descriptors followed by
+/// sin(2^k pi p) for the 3 coordinates of p (coordinate-major: x at k =
+/// 0..F-1, then y, then z), then cos in the same order; p = columns 0-2.
+/// Returns `descriptors` itself when `bands` is 0.
+torch::Tensor WithFourierFeatures(const torch::Tensor& descriptors,
+                                  int64_t bands);
 
 /// The label slots of a batch: `descriptors` `B x L x Q` float (or `1 x L x
 /// Q`, shared by every frame), `mask` `B x L` (or `1 x L`) bool, true where
@@ -89,7 +108,7 @@ class LabelEncoderImpl : public torch::nn::Module {
                         const torch::Tensor& mask);
   const LabelEncoderOptions& options() const { return options_; }
 
-  torch::nn::Linear input{nullptr};   // Q -> hidden
+  torch::nn::Linear input{nullptr};   // Q + 6F -> hidden
   torch::nn::Linear output{nullptr};  // hidden -> D
   std::vector<MultiHeadAttention> layers;
 

@@ -331,6 +331,7 @@ void RegisterModelSpecs() {
           label_reader.Read("hidden", &label.hidden);
           label_reader.Read("num_layers", &label.num_layers);
           label_reader.Read("num_heads", &label.num_heads);
+          label_reader.Read("fourier_bands", &label.fourier_bands);
           label_reader.Check("num_joints", num_joints > 0, "num_joints > 0");
           label_reader.Check("hidden", label.hidden > 0, "hidden > 0");
           label_reader.Check(
@@ -339,6 +340,11 @@ void RegisterModelSpecs() {
               "num_heads",
               label.num_heads > 0 && options.d_model % label.num_heads == 0,
               "num_heads > 0 and d_model % num_heads == 0");
+          label_reader.Check(
+              "fourier_bands",
+              label.fourier_bands >= 0 &&
+                  label.fourier_bands <= kMaxFourierBands,
+              fmt::format("0 <= fourier_bands <= {}", kMaxFourierBands));
           label_reader.Finish();
         }
         label.d_model = options.d_model;

@@ -16,6 +16,8 @@
 #include <torch/torch.h>
 
 #include "tests/model/conditioned_labeler.h"
+#include <cmath>
+#include <numbers>
 #include <set>
 #include <string>
 #include <vector>
@@ -39,6 +41,52 @@ torch::Tensor RandomDescriptors(int64_t batch, int64_t labels) {
 
 TEST(LabelEncoder, DescriptorWidthMatchesTheBody) {
   EXPECT_EQ(LabelDescriptorWidth(24), kWidth);
+}
+
+TEST(LabelEncoder, FourierFeaturesOfTheRestPosition) {
+  // bands = 0: the descriptors themselves.
+  const torch::Tensor q = torch::randn({2, 4, kWidth}, torch::kDouble);
+  EXPECT_TRUE(WithFourierFeatures(q, 0).is_same(q));
+  // bands = 3: Q + 18 columns, the descriptor first, then sin and cos of
+  // 2^k pi p, coordinate-major (p = columns 0-2).
+  const torch::Tensor f = WithFourierFeatures(q, 3);
+  ASSERT_EQ(f.sizes(), (std::vector<int64_t>{2, 4, kWidth + 18}));
+  EXPECT_TRUE(torch::equal(f.narrow(-1, 0, kWidth), q));
+  for (int64_t c = 0; c < 3; ++c) {
+    for (int64_t k = 0; k < 3; ++k) {
+      const double x =
+          q[1][2][c].item<double>() * std::pow(2.0, k) * std::numbers::pi;
+      const int64_t column = kWidth + 3 * c + k;
+      EXPECT_NEAR(f[1][2][column].item<double>(), std::sin(x), 1e-12)
+          << c << " " << k;
+      EXPECT_NEAR(f[1][2][column + 9].item<double>(), std::cos(x), 1e-12)
+          << c << " " << k;
+    }
+  }
+  // Only the position is encoded: the other columns do not reach the
+  // features.
+  torch::Tensor other = q.clone();
+  other.narrow(-1, 3, kWidth - 3).normal_();
+  EXPECT_TRUE(torch::equal(WithFourierFeatures(other, 3).narrow(-1, kWidth, 18),
+                           f.narrow(-1, kWidth, 18)));
+  // The encoder's first layer takes them, and only the options' width.
+  LabelEncoderOptions options;
+  options.descriptor_width = kWidth;
+  options.d_model = 10;
+  options.hidden = 8;
+  options.num_layers = 1;
+  options.num_heads = 2;
+  options.fourier_bands = 3;
+  LabelEncoder encoder(options);
+  EXPECT_EQ(encoder->input->weight.size(1), kWidth + 18);
+  EXPECT_EQ(options.InputWidth(), kWidth + 18);
+  const torch::Tensor mask = torch::ones({2, 4}, torch::kBool);
+  EXPECT_EQ(encoder->forward(q.to(torch::kFloat), mask).sizes(),
+            (std::vector<int64_t>{2, 10, 4}));
+  options.fourier_bands = -1;
+  EXPECT_THROW(LabelEncoder{options}, ConfigError);
+  options.fourier_bands = kMaxFourierBands + 1;
+  EXPECT_THROW(LabelEncoder{options}, ConfigError);
 }
 
 TEST(ConditionedLabeler, OutputShapes) {
@@ -305,6 +353,20 @@ TEST(BuildLabeler, SomaAnyLayoutFromConfig) {
   bad = model;
   bad.SetPath("label_encoder.depth", ConfigNode(int64_t{3}));
   EXPECT_THROW(BuildLabeler(bad, norm, 6), ConfigError);
+  bad = model;
+  bad.SetPath("label_encoder.fourier_bands", ConfigNode(int64_t{-2}));
+  const std::string fourier_message =
+      testing::ErrorMessage<ConfigError>([&] { BuildLabeler(bad, norm, 6); });
+  EXPECT_NE(fourier_message.find("fourier_bands"), std::string::npos)
+      << fourier_message;
+  EXPECT_EQ(fourier_message.find('\n'), std::string::npos) << fourier_message;
+  // Fourier features widen the first layer of the descriptor MLP only:
+  // 6F more inputs of its `hidden` units.
+  ConfigNode fourier = model;
+  fourier.SetPath("label_encoder.fourier_bands", ConfigNode(int64_t{4}));
+  EXPECT_EQ(CountTrainableParameters(*BuildLabeler(fourier, norm, 6)),
+            CountTrainableParameters(*labeler) +
+                24 * model.at("label_encoder").at("hidden").AsInt());
   // The plain model is unchanged: no label branch, a fixed head.
   ConfigNode soma = LoadConfig("model/soma.yaml");
   Labeler plain = BuildLabeler(soma, norm, 41);
