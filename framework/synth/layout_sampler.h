@@ -97,11 +97,11 @@ MarkerLayout MakeRandomLayout(const BodyModel& body,
                               std::string_view prefix,
                               Rng* rng);
 
-/// A perturbed copy of `layout` on `body`: each marker kept with probability
-/// `keep` (at least one is), moved to a uniform vertex of the `rings`-ring of
-/// its first vertex (the vertex itself included) that no other marker of the
-/// copy holds, its type and skin distance kept, labelled "<prefix>_<label>".
-/// `neighbours` is VertexNeighbours of the body's mesh.
+/// A perturbed copy of `layout`: each marker kept with probability `keep` (at
+/// least one is), moved to a uniform vertex of the `rings`-ring of its first
+/// vertex (the vertex itself included) that no other marker of the copy
+/// holds, its type and skin distance kept, labelled "<prefix>_<label>".
+/// `neighbours` is VertexNeighbours of the mesh the layout's vertex ids index.
 MarkerLayout MakePerturbedLayout(
     const MarkerLayout& layout,
     const std::vector<std::vector<int>>& neighbours,

@@ -331,49 +331,47 @@ TEST(ResultsTest, ReadmeQuotesFigC3AtTheHeadlineBudgetAsItsReportSaysIt) {
        {"skewed-Gaussian ghosts ", "ghosts60_skewed"}});
 }
 
-// Issue #25 item 3: the README's any-layout paragraph quotes the report
-// (conditioned and per-layout models, bold) and the fine-tuning table (the
-// mean over its seeds per target and epoch count, in epoch order).
-// The perturbed-layout variants (results/any_layout_perturbed/, seed 0):
-// the README quotes each on each take, bold.
-TEST(ResultsTest, ReadmeQuotesThePerturbedLayoutRunAsItsReportSaysIt) {
+/// The README quotes `**<mean>%**` (two decimals, bold) for each (variant,
+/// test) accuracy of `csv`.
+void ExpectReadmeQuotesBoldAccuracies(
+    const std::string& csv,
+    const std::vector<std::pair<std::string, std::string>>& cells) {
   const std::string readme = Readme();
-  for (const std::string variant :
-       {"any_layout_perturbed_only", "any_layout_perturbed"}) {
-    for (const std::string test : {"hdm05", "cmu", "pig"}) {
-      EXPECT_THAT(
-          readme,
-          MatchesSomewhere("\\*\\*" +
-                           Cell("results/any_layout_perturbed/any_layout.csv",
-                                variant,
-                                test,
-                                "acc",
-                                2,
-                                false) +
-                           "%\\*\\*"))
-          << variant << " on " << test;
-    }
+  for (const auto& [variant, test] : cells) {
+    EXPECT_THAT(
+        readme,
+        MatchesSomewhere("\\*\\*" + Cell(csv, variant, test, "acc", 2, false) +
+                         "%\\*\\*"))
+        << csv << ": " << variant << " on " << test;
   }
 }
 
-TEST(ResultsTest, ReadmeQuotesTheAnyLayoutRunAsItsReportsSayIt) {
-  const std::string readme = Readme();
-  for (const auto& [variant, test] :
-       std::vector<std::pair<std::string, std::string>>{
-           {"any_layout", "hdm05"},
-           {"any_layout", "cmu"},
-           {"any_layout", "pig"},
-           {"hdm05_layout", "hdm05"},
-           {"cmu41_layout", "cmu"},
-           {"pig_layout", "pig"}}) {
-    EXPECT_THAT(
-        readme,
-        MatchesSomewhere(
-            "\\*\\*" +
-            Cell("results/any_layout.csv", variant, test, "acc", 2, false) +
-            "%\\*\\*"))
-        << variant << " on " << test;
+// The perturbed-layout variants (results/any_layout_perturbed/): the README
+// quotes each on each take, bold.
+TEST(ResultsTest, ReadmeQuotesThePerturbedLayoutRunAsItsReportSaysIt) {
+  std::vector<std::pair<std::string, std::string>> cells;
+  for (const std::string variant :
+       {"any_layout_perturbed_only", "any_layout_perturbed"}) {
+    for (const std::string test : {"hdm05", "cmu", "pig"}) {
+      cells.emplace_back(variant, test);
+    }
   }
+  ExpectReadmeQuotesBoldAccuracies(
+      "results/any_layout_perturbed/any_layout.csv", cells);
+}
+
+// Issue #25 item 3: the README's any-layout paragraph quotes the report
+// (conditioned and per-layout models, bold) and the fine-tuning table (the
+// mean over its seeds per target and epoch count, in epoch order).
+TEST(ResultsTest, ReadmeQuotesTheAnyLayoutRunAsItsReportsSayIt) {
+  ExpectReadmeQuotesBoldAccuracies("results/any_layout.csv",
+                                   {{"any_layout", "hdm05"},
+                                    {"any_layout", "cmu"},
+                                    {"any_layout", "pig"},
+                                    {"hdm05_layout", "hdm05"},
+                                    {"cmu41_layout", "cmu"},
+                                    {"pig_layout", "pig"}});
+  const std::string readme = Readme();
   std::map<std::string, std::map<int, std::vector<double>>> tuned;
   for (const auto& row :
        ReadCsv(testing::SourceDir() / "results/any_layout_finetune.csv")) {
