@@ -783,7 +783,7 @@ def _shorten(text: str, n: int = 70) -> str:
 
 def plot_claims(df: pd.DataFrame):
     """A forest plot: one row per claim, our gap (better − worse, points) with ±2 s.e., the region where
-    the claim passes shaded (gap > 0, or |gap| ≤ tolerance), and the paper's gap where it is known."""
+    the claim passes shaded (gap > 0, |gap| ≤ tolerance, or gap ≤ tolerance), and the paper's gap where it is known."""
     n = len(df)
     fig, ax = plt.subplots(figsize=(12, 0.34 * n + 1.8), constrained_layout=True)
     finite = pd.concat([df["gap"] + 2 * df["gap_se"].fillna(0), df["gap"] - 2 * df["gap_se"].fillna(0),
@@ -796,6 +796,8 @@ def plot_claims(df: pd.DataFrame):
         if r["kind"] == "close" and not pd.isna(r["tolerance"]):
             ax.add_patch(Rectangle((-r["tolerance"], i - 0.4), 2 * r["tolerance"], 0.8, color=PASS_COLOR,
                                    alpha=0.12, lw=0))
+        elif r["kind"] == "not_behind" and not pd.isna(r["tolerance"]):
+            ax.add_patch(Rectangle((lo, i - 0.4), r["tolerance"] - lo, 0.8, color=PASS_COLOR, alpha=0.12, lw=0))
         else:
             ax.add_patch(Rectangle((0, i - 0.4), hi, 0.8, color=PASS_COLOR, alpha=0.12, lw=0))
         if not pd.isna(r["paper_gap"]):

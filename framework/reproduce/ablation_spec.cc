@@ -143,15 +143,17 @@ AblationClaim ParseClaim(const ConfigNode& node,
   reader.Check("metric", IsMetric(c.metric), "acc or f1");
   reader.Read("kind", &c.kind);
   reader.Check(
-      "kind", c.kind == "greater" || c.kind == "close", "greater or close");
+      "kind",
+      c.kind == "greater" || c.kind == "close" || c.kind == "not_behind",
+      "greater, close or not_behind");
   reader.Require("better", &c.better);
   reader.Check("better", variants.count(c.better) > 0, "a variant name");
   reader.Require("worse", &c.worse);
   reader.Check("worse", variants.count(c.worse) > 0, "a variant name");
   reader.Read("tolerance", &c.tolerance);
   reader.Check("tolerance",
-               c.kind != "close" || c.tolerance > 0,
-               "kind close needs a tolerance > 0 (points)");
+               c.kind == "greater" || c.tolerance > 0,
+               "kind close or not_behind needs a tolerance > 0 (points)");
   if (const ConfigNode* gap = reader.Child("paper_gap");
       gap != nullptr && !gap->IsNull()) {
     c.paper_gap = gap->AsDouble();

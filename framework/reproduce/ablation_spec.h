@@ -67,8 +67,13 @@ struct AblationTest {
   std::vector<std::string> label_overrides;
 };
 
-/// "`better` beats `worse` on `test`/`metric`" (kind greater), or "`better`
-/// is within `tolerance` points of `worse`" (kind close). The two sides may
+/// "`better` beats `worse` on `test`/`metric`" (kind greater), "`better`
+/// is within `tolerance` points of `worse`" (kind close: |gap| <= tolerance),
+/// or "`worse` is at most `tolerance` points behind `better`" (kind
+/// not_behind: gap <= tolerance, so `worse` may also be ahead; e.g. "one
+/// conditioned model within 3 points of the per-layout model" as an
+/// accuracy target, which a model that beats the per-layout one meets). The
+/// two sides may
 /// be read on different tests (`better_test`, `worse_test`; default `test`),
 /// e.g. "0 occlusions vs 5 occlusions" for one variant.
 struct AblationClaim {
@@ -77,10 +82,10 @@ struct AblationClaim {
   std::string better_test;  // defaults to `test`
   std::string worse_test;   // defaults to `test`
   std::string metric = "acc";
-  std::string kind = "greater";  // greater | close
+  std::string kind = "greater";  // greater | close | not_behind
   std::string better;
   std::string worse;
-  double tolerance = 0.0;  // kind close: points
+  double tolerance = 0.0;  // kinds close and not_behind: points
   /// The paper's gap (better - worse) when the paper gives no table numbers
   /// for it; otherwise computed from the variants' paper values.
   std::optional<double> paper_gap;

@@ -111,10 +111,13 @@ std::string ClaimRule(const AblationClaim& claim) {
       same_test ? claim.better : claim.better + "@" + claim.better_test;
   const std::string worse =
       same_test ? claim.worse : claim.worse + "@" + claim.worse_test;
-  return claim.kind == "greater"
-             ? fmt::format("{} − {} > 0", better, worse)
-             : fmt::format(
-                   "|{} − {}| ≤ {:.1f}", better, worse, claim.tolerance);
+  if (claim.kind == "greater") {
+    return fmt::format("{} − {} > 0", better, worse);
+  }
+  if (claim.kind == "not_behind") {
+    return fmt::format("{} − {} ≤ {:.1f}", better, worse, claim.tolerance);
+  }
+  return fmt::format("|{} − {}| ≤ {:.1f}", better, worse, claim.tolerance);
 }
 
 std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
@@ -165,15 +168,21 @@ std::vector<ClaimOutcome> CheckClaims(const AblationSpec& spec,
         outcome.gap_se = std::sqrt(sb * sb / better->seeds_done() +
                                    sw * sw / worse->seeds_done());
       }
-      const bool pass = claim.kind == "greater"
-                            ? *outcome.gap > 0
-                            : std::abs(*outcome.gap) <= claim.tolerance;
+      const double gap = *outcome.gap;
+      bool pass = false;
+      double margin = 0;  // distance of the gap from the claim's boundary
+      if (claim.kind == "greater") {
+        pass = gap > 0;
+        margin = std::abs(gap);
+      } else if (claim.kind == "not_behind") {
+        pass = gap <= claim.tolerance;
+        margin = std::abs(gap - claim.tolerance);
+      } else {
+        pass = std::abs(gap) <= claim.tolerance;
+        margin = std::abs(std::abs(gap) - claim.tolerance);
+      }
       outcome.verdict = pass ? "pass" : "fail";
       if (outcome.gap_se) {
-        const double margin =
-            claim.kind == "greater"
-                ? std::abs(*outcome.gap)
-                : std::abs(std::abs(*outcome.gap) - claim.tolerance);
         outcome.within_noise = margin < 2 * *outcome.gap_se;
       }
     } else if (!spec.Variant(claim.better).skip.empty() ||
@@ -246,7 +255,7 @@ void WriteClaimsCsv(const AblationSpec& spec,
         c.better_test,
         c.worse,
         c.worse_test,
-        c.kind == "close" ? Fixed(c.tolerance) : "",
+        c.kind != "greater" ? Fixed(c.tolerance) : "",
         Fixed(outcome.paper_gap),
         Fixed(outcome.gap),
         Fixed(outcome.gap_se),

@@ -150,7 +150,7 @@ TEST(AblationSpecTest, BadSpecsAreOneLineConfigErrors) {
        "a test of this spec"},
       {"paper: {hdm05:", "paper: {hdm06:", "a test of this spec"},
       {"tolerance: 2.0,", "", "needs a tolerance"},
-      {"kind: close", "kind: less", "greater or close"},
+      {"kind: close", "kind: less", "greater, close or not_behind"},
       {"acc: 95.5, acc_std: 5.33, f1: 94.66",
        "acc: 95.5, f1_std: 5.33",
        "f1_std needs f1"},

@@ -151,6 +151,46 @@ TEST(ReportTest, CloseClaimFailsOutsideItsTolerance) {
   EXPECT_FALSE(out.within_noise);
 }
 
+// kind not_behind: `worse` may be ahead of `better` by any margin, and at
+// most `tolerance` points behind it.
+TEST(ReportTest, NotBehindClaimPassesAheadAndWithinItsTolerance) {
+  const AblationSpec spec = ParseAblationSpec(ParseYaml(R"(
+name: target
+title: "Target"
+seeds: 2
+tests:
+  t0: {label: "zero", take: a.c3d, setting: OCE_00_G_00_BT_00}
+variants:
+  - name: own
+  - name: shared
+claims:
+  - {text: "shared within 2 of own", test: t0, kind: not_behind,
+     tolerance: 2.0, better: own, worse: shared, origin: ours}
+)",
+                                                        "target.yaml"),
+                                              "target.yaml");
+  EXPECT_EQ(ClaimRule(spec.claims[0]), "own − shared ≤ 2.0");
+  auto outcome = [&](std::vector<double> own, std::vector<double> shared) {
+    const std::vector<CellResult> cells = {Cell("own", "t0", std::move(own)),
+                                           Cell("shared", "t0", shared)};
+    return CheckClaims(spec, cells)[0];
+  };
+  // 6 points ahead: a close claim would fail, this one passes.
+  ClaimOutcome out = outcome({90.0, 90.0}, {96.0, 96.0});
+  EXPECT_EQ(out.verdict, "pass");
+  EXPECT_DOUBLE_EQ(*out.gap, -6.0);
+  EXPECT_FALSE(out.within_noise);
+  out = outcome({90.0, 90.0}, {88.5, 88.5});  // 1.5 behind
+  EXPECT_EQ(out.verdict, "pass");
+  out = outcome({90.0, 90.0}, {85.0, 85.0});  // 5 behind
+  EXPECT_EQ(out.verdict, "fail");
+  EXPECT_FALSE(out.within_noise);
+  // 2.5 behind, seeds spread by 2: 0.5 from the boundary, within noise.
+  out = outcome({89.0, 91.0}, {86.5, 88.5});
+  EXPECT_EQ(out.verdict, "fail");
+  EXPECT_TRUE(out.within_noise);
+}
+
 TEST(ReportTest, VerdictsNearTheirBoundaryAreWithinSeedNoise) {
   std::vector<CellResult> cells = Cells();
   // Close claim: gap 3 against tolerance 2; per-seed differences {5, 2, 2}
