@@ -68,6 +68,14 @@ NOTEBOOKS = {
         "ghosts (does a 60-ghost model fail on real data, or on the shift from 60 ghosts to 3?). The paper "
         "shows curves only.",
     ),
+    "any_layout": (
+        "Any layout — one layout-conditioned labeller against a model per layout (issue #25, not a paper table)",
+        "Each conditioned variant (trained once, never on the test layouts) labels three real takes, each with "
+        "its own layout given at label time, beside the per-layout model trained on that layout. Plot: one "
+        "panel per take, a bar per conditioned variant (mean over seeds ± seed std, each seed a dot from "
+        "results/any_layout_seeds.csv), the per-layout model as a line and the issue's target, at most 3 points "
+        "behind it, shaded. The paper trains one model per layout, so there is no paper column.",
+    ),
     "claims": (
         "The paper's claims, across every table",
         "Every qualitative claim of the paper that a reproduction checks (the `claims:` of "

@@ -27,6 +27,7 @@ import os
 import pathlib
 import re
 import sys
+import textwrap
 
 import matplotlib
 
@@ -837,6 +838,64 @@ def plot_claims(df: pd.DataFrame):
     return fig
 
 
+# --------------------------------------------------------------------------------------------
+# Issue #25 item 3 (not a paper table): one layout-conditioned model against a model per layout
+
+
+PER_LAYOUT = {"hdm05": "hdm05_layout", "cmu": "cmu41_layout", "pig": "pig_layout"}
+
+
+def plot_any_layout(df: pd.DataFrame, metric: str = "acc"):
+    """One panel per real take: a bar per conditioned variant (mean over seeds, ± seed std, each
+    seed a dot), the take's per-layout model as a solid line and item 3's target (at most 3 points
+    behind it, ahead by any margin) shaded. Variants not run on a take are left out."""
+    d = _metric(df, metric)
+    tests = ordered(d["test"])
+    variants = [v for v in ordered(d["variant"])
+                if v not in PER_LAYOUT.values() and d[d["variant"] == v]["mean"].notna().any()]
+    fig, axes = plt.subplots(1, len(tests), figsize=(6 * len(tests), 0.8 * len(variants) + 2.6),
+                             constrained_layout=True, squeeze=False, sharey=True)
+    seeds = None
+    seeds_path = results_dir() / "any_layout_seeds.csv"
+    if seeds_path.is_file():
+        seeds = pd.read_csv(seeds_path)
+        seeds = seeds[seeds["metric"] == metric]
+    for ax, test in zip(axes[0], tests):
+        g = d[d["test"] == test]
+        ref = g[g["variant"] == PER_LAYOUT.get(test, "")]
+        if not ref.empty and not pd.isna(ref.iloc[0]["mean"]):
+            r = ref.iloc[0]["mean"]
+            ax.axvspan(r - 3, 100, color="tab:green", alpha=0.15,
+                       label="at most 3 points behind it (item 3's target)")
+            ax.axvline(r, color="tab:green", lw=2, label=f"per-layout model {r:.2f}")
+        for i, variant in enumerate(variants):
+            rows = g[g["variant"] == variant]
+            if rows.empty or pd.isna(rows.iloc[0]["mean"]):
+                continue
+            row = rows.iloc[0]
+            std = _num(row["std_seeds"]) or 0
+            ax.barh(i, row["mean"], 0.6, xerr=std, color=OURS_COLOR, capsize=3, edgecolor="black",
+                    hatch="///" if row["status"] == "partial" else None)
+            if seeds is not None:
+                s = seeds[(seeds["variant"] == variant) & (seeds["test"] == test)]["value"]
+                ax.plot(s, [i] * len(s), "o", color="black", ms=3)
+            note = status_note(row)
+            ax.text(row["mean"] + std + 0.5, i, f"{row['mean']:.2f}" + (f" ({note})" if note else ""),
+                    va="center", fontsize=8)
+        labels = [(d[d["variant"] == v]["variant_label"].iloc[0] or v).removeprefix("one conditioned model: ")
+                  for v in variants]
+        ax.set_yticks(range(len(variants)), ["\n".join(textwrap.wrap(t, 48)[:3]) for t in labels], fontsize=7)
+        lo = np.nanmin(g["mean"]) if g["mean"].notna().any() else 0
+        ax.set_xlim(max(0, lo - 10), 100)
+        ax.set_xlabel(f"{metric} per frame (%), mean ± std over seeds (dots: seeds)")
+        ax.grid(axis="x", alpha=0.3)
+        ax.set_title(g["test_label"].iloc[0] if not g.empty else test, fontsize=10)
+        ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2, fontsize=7, frameon=False)
+    axes[0][0].invert_yaxis()
+    fig.suptitle(f"One layout-conditioned model, never trained on the test layouts, against a model per layout ({metric})")
+    return fig
+
+
 PLOTS = {
     "table1": plot_table1,
     "table2": plot_table2,
@@ -847,6 +906,7 @@ PLOTS = {
     "fig_c2": plot_fig_c2,
     "fig_c3": plot_fig_c3,
     "claims": plot_claims,
+    "any_layout": plot_any_layout,
 }
 
 

@@ -46,7 +46,7 @@ struct LabelEncoderOptions {
   int64_t num_heads = 5;         // heads; must divide d_model
   /// F: the rest position p (descriptor columns 0-2, body frame / height)
   /// also enters the MLP as sin(2^k pi p), cos(2^k pi p), k = 0..F-1 (6F
-  /// more inputs; periods from 2 body heights down to 2^(1-F)), so that
+  /// more inputs; periods from 2 body heights down to 2^(2-F)), so that
   /// labels a few centimetres apart get separable embeddings. 0 = none.
   int64_t fourier_bands = 0;
   void Validate() const;  // ConfigError on violation
@@ -55,7 +55,7 @@ struct LabelEncoderOptions {
 };
 
 /// Upper bound of LabelEncoderOptions::fourier_bands (the finest period,
-/// 2^-15 body heights, is far below any marker spacing).
+/// 2^-14 body heights, is far below any marker spacing).
 inline constexpr int64_t kMaxFourierBands = 16;
 
 /// `descriptors` `... x Q` -> `... x (Q + 6F)`: the descriptors followed by

@@ -116,6 +116,7 @@ done
 for csv in "$results"/*.csv; do
   base=$(basename "$csv" .csv)
   base=${base%_curves}  # <name>_curves.csv is read by <name>.ipynb
+  base=${base%_seeds}   # <name>_seeds.csv too (any_layout.ipynb: a dot per seed)
   [[ $base == *_claims ]] && base=claims  # <name>_claims.csv by claims.ipynb
   [[ -f "$nbdir/$base.ipynb" ]] || echo "note: no notebook plots $csv"
 done

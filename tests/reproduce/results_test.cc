@@ -346,12 +346,15 @@ void ExpectReadmeQuotesBoldAccuracies(
   }
 }
 
-// The perturbed-layout variants (results/any_layout_perturbed/): the README
-// quotes each on each take, bold.
+// The perturbed-layout variants (results/any_layout_perturbed/), with and
+// without Fourier features and at 60 epochs: the README quotes each on each
+// take, bold.
 TEST(ResultsTest, ReadmeQuotesThePerturbedLayoutRunAsItsReportSaysIt) {
   std::vector<std::pair<std::string, std::string>> cells;
-  for (const std::string variant :
-       {"any_layout_perturbed_only", "any_layout_perturbed"}) {
+  for (const std::string variant : {"any_layout_perturbed_only",
+                                    "any_layout_perturbed",
+                                    "any_layout_perturbed_fourier",
+                                    "any_layout_perturbed_fourier_60"}) {
     for (const std::string test : {"hdm05", "cmu", "pig"}) {
       cells.emplace_back(variant, test);
     }
