@@ -11,6 +11,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <chrono>
 #include <cmath>
 #include <csignal>
 #include <cstdio>
@@ -22,6 +23,7 @@
 #include <set>
 #include <sstream>
 #include <sys/wait.h>
+#include <thread>
 #include <unistd.h>
 
 namespace soma {
@@ -747,6 +749,36 @@ std::vector<int> CancelSlurmSweep(const fs::path& sweep_dir,
           "scancel failed for array {}: {}", array_id, OneLine(r.err + r.out)));
     }
     cancelled.insert(cancelled.end(), nums.begin(), nums.end());
+  }
+  // scancel only asks: a task that was starting can still record itself
+  // running in the ledger before its SIGTERM lands (it takes the ledger lock
+  // after this process lets go of it). Mark the ledger once the cancelled
+  // tasks have left the queue, so that no task's own write comes after it.
+  auto still_queued = [&] {
+    try {
+      const auto queue = QueryQueue();
+      for (const auto& [array_id, nums] : by_array) {
+        for (int n : nums) {
+          if (queue.count({array_id, n}) > 0) return true;
+        }
+      }
+      return false;
+    } catch (const Error& e) {
+      SOMA_LOG(WARNING, "{} (after scancel)", e.what());
+      return true;
+    }
+  };
+  constexpr auto kLeaveQueueTimeout = std::chrono::seconds(60);
+  const auto deadline = std::chrono::steady_clock::now() + kLeaveQueueTimeout;
+  while (!cancelled.empty() && still_queued()) {
+    if (std::chrono::steady_clock::now() > deadline) {
+      SOMA_LOG(WARNING,
+               "Cancelled SLURM tasks still queued after {} s: marking them "
+               "failed in the ledger now",
+               kLeaveQueueTimeout.count());
+      break;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(200));
   }
   if (!cancelled.empty()) {
     LedgerLock lock(sweep_dir);

@@ -138,8 +138,10 @@ bool WaitForSlurmJobs(const std::filesystem::path& sweep_dir,
                       const SlurmLauncherOptions& options,
                       const SlurmJobEndedOk& ended_ok = {});
 
-/// Cancels the sweep's pending and running SLURM jobs and marks them failed
-/// in the ledger; returns the job numbers cancelled.
+/// Cancels the sweep's pending and running SLURM jobs and, once they have
+/// left the queue (at most 60 s: a task that was starting may record itself
+/// running until then), marks them failed in the ledger; returns the job
+/// numbers cancelled.
 std::vector<int> CancelSlurmSweep(const std::filesystem::path& sweep_dir,
                                   const std::string& reason);
 
