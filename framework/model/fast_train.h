@@ -29,7 +29,8 @@
 //
 // A layout-conditioned labeller (model=soma_any_layout) trains on the same
 // kernels for its point side and on torch autograd for its label side (see
-// FastTrainer::Step).
+// FastTrainer::Step), whose label encoder runs once per distinct label set of
+// the batch (LabelEncoderImpl::EncodeSlots), not once per frame.
 //
 // Every component declares its own fast path: BackboneImpl::MakeFastTrainOp
 // and NormalizationImpl::MakeFastLossOp return nullptr with a reason when a

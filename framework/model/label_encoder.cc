@@ -7,11 +7,15 @@
 #include <fmt/format.h>
 #include <torch/torch.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
 #include <numbers>
 #include <string>
 #include <string_view>
+#include <unordered_map>
+#include <vector>
 
 namespace soma {
 
@@ -112,9 +116,150 @@ torch::Tensor CheckLabelSlots(const LabelSlots& slots,
   return m;
 }
 
+CompactSlots CompactLabelSlots(const LabelSlots& slots) {
+  const torch::Tensor q =
+      slots.descriptors.to(torch::kCPU).contiguous();  // B x L x Q
+  const int64_t batch = q.size(0);
+  const int64_t num_slots = q.size(1);
+  const int64_t width = q.size(2);
+  const torch::Tensor m = CheckLabelSlots(slots, num_slots, width, batch)
+                              .to(torch::kCPU)
+                              .contiguous();
+  const char* rows = static_cast<const char*>(q.data_ptr());
+  const bool* mask = m.data_ptr<bool>();
+  const int64_t mask_stride = m.size(0) == 1 ? 0 : num_slots;
+  const size_t row_bytes = q.element_size() * static_cast<size_t>(width);
+  auto row = [&](int64_t b, int64_t l) {
+    return rows + static_cast<size_t>(b * num_slots + l) * row_bytes;
+  };
+
+  // Per frame: its labelled slots in the canonical order (by the bytes of
+  // their rows, ties by slot), the set as one key, and its distinct set.
+  std::unordered_map<std::string, int64_t> set_of;
+  std::vector<int64_t> representative;  // a frame holding set u
+  std::vector<int64_t> frames_with;     // frames holding set u
+  std::vector<int64_t> set_size;
+  std::vector<int64_t> slot_set(static_cast<size_t>(batch * num_slots), -1);
+  std::vector<int64_t> slot_position(slot_set.size(), 0);
+  int64_t padded = 0;
+  std::vector<int64_t> order;
+  std::string key;
+  for (int64_t b = 0; b < batch; ++b) {
+    order.clear();
+    for (int64_t l = 0; l < num_slots; ++l) {
+      if (mask[b * mask_stride + l]) order.push_back(l);
+    }
+    padded += num_slots - static_cast<int64_t>(order.size());
+    std::sort(order.begin(), order.end(), [&](int64_t i, int64_t j) {
+      const int c = std::memcmp(row(b, i), row(b, j), row_bytes);
+      return c != 0 ? c < 0 : i < j;
+    });
+    key.resize(order.size() * row_bytes);
+    for (size_t p = 0; p < order.size(); ++p) {
+      std::memcpy(key.data() + p * row_bytes, row(b, order[p]), row_bytes);
+    }
+    const auto [it, inserted] =
+        set_of.try_emplace(key, static_cast<int64_t>(representative.size()));
+    if (inserted) {
+      representative.push_back(b);
+      frames_with.push_back(0);
+      set_size.push_back(static_cast<int64_t>(order.size()));
+    }
+    const int64_t u = it->second;
+    ++frames_with[static_cast<size_t>(u)];
+    for (size_t p = 0; p < order.size(); ++p) {
+      const size_t slot = static_cast<size_t>(b * num_slots + order[p]);
+      slot_set[slot] = u;
+      slot_position[slot] = static_cast<int64_t>(p);
+    }
+  }
+
+  const int64_t sets = static_cast<int64_t>(representative.size());
+  const int64_t rows_out = sets + (padded > 0 ? 1 : 0);
+  int64_t columns = 1;
+  for (int64_t size : set_size) columns = std::max(columns, size);
+  CompactSlots out;
+  out.descriptors = torch::zeros({rows_out, columns, width}, q.options());
+  out.mask = torch::zeros({rows_out, columns}, torch::kBool);
+  out.weights = torch::zeros({rows_out, columns}, torch::kFloat);
+  out.index = torch::empty({batch * num_slots}, torch::kLong);
+  char* d = static_cast<char*>(out.descriptors.data_ptr());
+  bool* dm = out.mask.data_ptr<bool>();
+  float* w = out.weights.data_ptr<float>();
+  int64_t* index = out.index.data_ptr<int64_t>();
+  for (int64_t l = 0; l < batch * num_slots; ++l) {
+    const int64_t u = slot_set[static_cast<size_t>(l)];
+    if (u < 0) {  // a padded slot: the padding row's token
+      index[l] = sets * columns;
+      continue;
+    }
+    const int64_t c = slot_position[static_cast<size_t>(l)];
+    index[l] = u * columns + c;
+    if (l / num_slots == representative[static_cast<size_t>(u)]) {
+      std::memcpy(d + static_cast<size_t>(u * columns + c) * row_bytes,
+                  rows + static_cast<size_t>(l) * row_bytes,
+                  row_bytes);
+      dm[u * columns + c] = true;
+      w[u * columns + c] =
+          static_cast<float>(frames_with[static_cast<size_t>(u)]);
+    }
+  }
+  if (padded > 0) w[sets * columns] = static_cast<float>(padded);
+  const torch::Device device = slots.descriptors.device();
+  out.descriptors = out.descriptors.to(device);
+  out.mask = out.mask.to(device);
+  out.weights = out.weights.to(device);
+  out.index = out.index.to(device);
+  return out;
+}
+
+namespace {
+
+/// `bn(x)` for `x` `B x C x L` whose statistics, in training, weigh token
+/// (b, l) by `weights[b][l]` (their sum the batch's token count): what
+/// BatchNorm1d computes on the batch the weighted tokens stand for, its
+/// running statistics included (biased variance to normalise, unbiased to
+/// track, as torch's).
+torch::Tensor WeightedBatchNorm(torch::nn::BatchNorm1dImpl& bn,
+                                const torch::Tensor& x,
+                                const torch::Tensor& weights) {
+  if (!weights.defined() || !bn.is_training()) return bn.forward(x);
+  const torch::nn::BatchNormOptions& options = bn.options;
+  const torch::Tensor w = weights.to(x.scalar_type()).unsqueeze(1);  // B 1 L
+  const double count = w.sum().item<double>();
+  if (count <= 1.0) {
+    throw ShapeError(fmt::format(
+        "Labeler: a batch norm in training needs more than 1 value per "
+        "channel, got {} tokens",
+        count));
+  }
+  const torch::Tensor mean = (x * w).sum({0, 2}, /*keepdim=*/true) / count;
+  const torch::Tensor centred = x - mean;
+  const torch::Tensor var =
+      (centred.square() * w).sum({0, 2}, /*keepdim=*/true) / count;
+  torch::Tensor y = centred * torch::rsqrt(var + options.eps());
+  if (options.affine()) {
+    y = y * bn.weight.view({1, -1, 1}) + bn.bias.view({1, -1, 1});
+  }
+  if (options.track_running_stats()) {
+    torch::NoGradGuard no_grad;
+    bn.num_batches_tracked += 1;
+    const double momentum = options.momentum().has_value()
+                                ? *options.momentum()
+                                : 1.0 / bn.num_batches_tracked.item<double>();
+    bn.running_mean.mul_(1.0 - momentum).add_(mean.flatten(), momentum);
+    bn.running_var.mul_(1.0 - momentum)
+        .add_(var.flatten() * (count / (count - 1.0)), momentum);
+  }
+  return y;
+}
+
+}  // namespace
+
 torch::Tensor MaskedAttentionUpdate(MultiHeadAttentionImpl& layer,
                                     const torch::Tensor& x,
-                                    const torch::Tensor& key_mask) {
+                                    const torch::Tensor& key_mask,
+                                    const torch::Tensor& weights) {
   const int64_t batch = x.size(0);
   const int64_t d_model = layer.d_model();
   const int64_t heads = layer.num_heads();
@@ -140,8 +285,8 @@ torch::Tensor MaskedAttentionUpdate(MultiHeadAttentionImpl& layer,
                                 .permute({0, 3, 1, 2})
                                 .reshape({batch, d_model, tokens});
   const torch::Tensor merged = layer.merge(out);
-  return layer.post_conv2(
-      torch::relu(layer.post_bn(layer.post_conv1(torch::cat({merged, x}, 1)))));
+  return layer.post_conv2(torch::relu(WeightedBatchNorm(
+      *layer.post_bn, layer.post_conv1(torch::cat({merged, x}, 1)), weights)));
 }
 
 LabelEncoderImpl::LabelEncoderImpl(const LabelEncoderOptions& options)
@@ -163,7 +308,8 @@ LabelEncoderImpl::LabelEncoderImpl(const LabelEncoderOptions& options)
 }
 
 torch::Tensor LabelEncoderImpl::forward(const torch::Tensor& descriptors,
-                                        const torch::Tensor& mask) {
+                                        const torch::Tensor& mask,
+                                        const torch::Tensor& weights) {
   // Padded slots' descriptors are ignored: zero them so that whatever a
   // caller left there cannot reach the embeddings (through BatchNorm's batch
   // statistics in training).
@@ -174,9 +320,25 @@ torch::Tensor LabelEncoderImpl::forward(const torch::Tensor& descriptors,
           .transpose(1, 2)
           .contiguous();  // B D L
   for (MultiHeadAttention& layer : layers) {
-    x = x + MaskedAttentionUpdate(*layer, x, mask);
+    x = x + MaskedAttentionUpdate(*layer, x, mask, weights);
   }
   return x;
+}
+
+torch::Tensor LabelEncoderImpl::EncodeSlots(const torch::Tensor& descriptors,
+                                            const torch::Tensor& mask) {
+  if (descriptors.size(0) == 1) return forward(descriptors, mask);
+  const int64_t batch = descriptors.size(0);
+  const int64_t num_slots = descriptors.size(1);
+  const CompactSlots compact = CompactLabelSlots({descriptors, mask});
+  const torch::Tensor tokens =
+      forward(compact.descriptors, compact.mask, compact.weights)
+          .transpose(1, 2)
+          .reshape({-1, options_.d_model});  // U*C x D
+  return tokens.index_select(0, compact.index)
+      .view({batch, num_slots, options_.d_model})
+      .transpose(1, 2)
+      .contiguous();  // B x D x L
 }
 
 ConditionedScoreHeadImpl::ConditionedScoreHeadImpl(int64_t d_model,

@@ -90,13 +90,45 @@ torch::Tensor CheckLabelSlots(const LabelSlots& slots,
                               int64_t width,
                               int64_t batch);
 
+/// The distinct label sets of a batch's slots (CompactLabelSlots). A
+/// training batch holds a few layouts many times over (one per placement
+/// block, each in its own slot order) padded to L_max slots, and the label
+/// encoder gives a slot an embedding that depends only on its own
+/// descriptor and the set of the frame's labels: not on the slot order
+/// (there is no positional input), nor on the padded slots (masked as
+/// keys). So it needs each distinct set once, and the padded slots once:
+///   row u < U-1 (or < U without padding): one distinct set, its rows in a
+///     canonical order (bytes of the descriptor row), then masked positions;
+///   the last row, when the batch has padded slots: one padded token
+///     (position 0; its embedding is every padded slot's).
+/// `weights` counts the batch's slots each token stands for (0 at the
+/// masked positions), so that the batch norms' statistics over the
+/// compact tokens equal those over the batch's B x L (LabelEncoderImpl::
+/// forward); `index` maps slot (b, l) to token u * C + c. Encoding the
+/// compact slots and gathering by `index` is the encoder of the whole
+/// batch, its values, gradients and running statistics, up to the order
+/// of float sums.
+struct CompactSlots {
+  torch::Tensor descriptors;  // U x C x Q float
+  torch::Tensor mask;         // U x C bool
+  torch::Tensor weights;      // U x C float
+  torch::Tensor index;        // B * L int64, into U * C
+};
+
+/// `slots` (checked: CheckLabelSlots' shapes, a batch of B >= 1 frames) ->
+/// its distinct label sets. Padded slots' descriptors are ignored.
+CompactSlots CompactLabelSlots(const LabelSlots& slots);
+
 /// Multi-head self-attention update of `layer` (MultiHeadAttentionImpl's
 /// computation) with keys masked: `x` `B x D x L`, `key_mask` `B x L` bool
 /// (false keys get no attention; a token always sees itself, so that a
-/// padded token's softmax is defined). Returns the `B x D x L` update.
+/// padded token's softmax is defined). `weights` `B x L` (undefined: 1
+/// each): in training, the batch norm's statistics weigh token (b, l) by
+/// it (CompactSlots). Returns the `B x D x L` update.
 torch::Tensor MaskedAttentionUpdate(MultiHeadAttentionImpl& layer,
                                     const torch::Tensor& x,
-                                    const torch::Tensor& key_mask);
+                                    const torch::Tensor& key_mask,
+                                    const torch::Tensor& weights = {});
 
 /// Label descriptors -> label embeddings. Children: `mlp.{0,2}` (Linear),
 /// `self_attention_layers.{i}` (MultiHeadAttention).
@@ -104,8 +136,17 @@ class LabelEncoderImpl : public torch::nn::Module {
  public:
   explicit LabelEncoderImpl(const LabelEncoderOptions& options);
   /// `descriptors` `B x L x Q`, `mask` `B x L` bool -> `B x D x L`.
+  /// `weights` `B x L`: the batch norms' token weights (MaskedAttentionUpdate;
+  /// undefined: 1 each).
   torch::Tensor forward(const torch::Tensor& descriptors,
-                        const torch::Tensor& mask);
+                        const torch::Tensor& mask,
+                        const torch::Tensor& weights = {});
+  /// forward(descriptors, mask) computed once per distinct label set of the
+  /// batch (CompactLabelSlots) and gathered back to `B x D x L`: the same
+  /// embeddings, gradients and running statistics, at the cost of the
+  /// batch's distinct layouts instead of its B x L slots.
+  torch::Tensor EncodeSlots(const torch::Tensor& descriptors,
+                            const torch::Tensor& mask);
   const LabelEncoderOptions& options() const { return options_; }
 
   torch::nn::Linear input{nullptr};   // Q + 6F -> hidden

@@ -160,8 +160,8 @@ torch::Tensor LabelerImpl::ConditionedScores(const torch::Tensor& point_keys,
       CheckLabelSlots(
           slots, options_.num_labels, descriptor_width(), point_keys.size(0))
           .to(point_keys.device());
-  const torch::Tensor labels =
-      label_encoder(slots.descriptors.to(point_keys.options()), mask);
+  const torch::Tensor labels = label_encoder->EncodeSlots(
+      slots.descriptors.to(point_keys.options()), mask);
   return label_head->Scores(point_keys, labels, mask);
 }
 

@@ -89,6 +89,150 @@ TEST(LabelEncoder, FourierFeaturesOfTheRestPosition) {
   EXPECT_THROW(LabelEncoder{options}, ConfigError);
 }
 
+// A batch as training sees it: two layouts, each several times in its own
+// slot order and padding, a padded slot holding garbage, a frame of one
+// layout only. Frames 0, 1, 3 hold set A (5 labels), frame 2 set B (3
+// labels), frame 4 set A minus one label (a third set).
+struct RepeatedLayouts {
+  torch::Tensor descriptors;  // 5 x 7 x Q
+  torch::Tensor mask;         // 5 x 7
+};
+
+RepeatedLayouts MakeRepeatedLayouts(torch::Dtype dtype) {
+  const torch::Tensor a = torch::randn({5, kWidth}, dtype);
+  const torch::Tensor b = torch::randn({3, kWidth}, dtype);
+  RepeatedLayouts r;
+  r.descriptors = torch::zeros({5, 7, kWidth}, dtype);
+  r.mask = torch::zeros({5, 7}, torch::kBool);
+  auto place = [&](int64_t frame,
+                   const torch::Tensor& rows,
+                   const std::vector<int64_t>& slots) {
+    for (size_t i = 0; i < slots.size(); ++i) {
+      r.descriptors[frame][slots[i]] = rows[static_cast<int64_t>(i)];
+      r.mask[frame][slots[i]] = true;
+    }
+  };
+  place(0, a, {0, 1, 2, 3, 4});
+  place(1, a, {6, 2, 0, 5, 3});
+  place(2, b, {1, 4, 5});
+  place(3, a, {4, 3, 2, 1, 0});
+  r.descriptors[3][6] = 50 * torch::ones({kWidth}, dtype);  // padded garbage
+  place(4, a.narrow(0, 0, 4), {3, 0, 6, 1});
+  return r;
+}
+
+TEST(LabelEncoder, CompactSlotsHoldEachDistinctLabelSetOnce) {
+  torch::manual_seed(11);
+  const RepeatedLayouts r = MakeRepeatedLayouts(torch::kFloat);
+  const CompactSlots c = CompactLabelSlots({r.descriptors, r.mask});
+  // Sets A, B, A minus one, and the padding row; 5 columns (A's size).
+  ASSERT_EQ(c.descriptors.sizes(), (std::vector<int64_t>{4, 5, kWidth}));
+  ASSERT_EQ(c.index.sizes(), (std::vector<int64_t>{5 * 7}));
+  EXPECT_EQ(c.mask.sum().item<int64_t>(), 5 + 3 + 4);
+  // Each token stands for as many slots as the batch holds: A's tokens
+  // for 3 frames, B's and the third set's for 1, the padding token for the
+  // 35 - 15 - 3 - 4 padded slots; the masked positions for none.
+  EXPECT_EQ(c.weights.sum().item<double>(), 35.0);
+  EXPECT_EQ(c.weights[0].sum().item<double>(), 15.0);
+  EXPECT_EQ(c.weights[1].sum().item<double>(), 3.0);
+  EXPECT_EQ(c.weights[2].sum().item<double>(), 4.0);
+  EXPECT_EQ(c.weights[3][0].item<double>(), 13.0);
+  EXPECT_EQ(c.weights.masked_select(c.mask.logical_not()).sum().item<double>(),
+            13.0);
+  // Gathering the tokens by `index` gives back every labelled slot's
+  // descriptor; every padded slot points at the padding token.
+  const torch::Tensor gathered = c.descriptors.reshape({-1, kWidth})
+                                     .index_select(0, c.index)
+                                     .view({5, 7, kWidth});
+  const torch::Tensor labelled = r.mask.unsqueeze(-1);
+  EXPECT_TRUE(torch::equal(gathered.masked_select(labelled),
+                           r.descriptors.masked_select(labelled)));
+  EXPECT_TRUE(
+      torch::equal(c.index.masked_select(r.mask.flatten().logical_not()),
+                   torch::full({13}, int64_t{3 * 5})));
+  // A batch of one layout in one order: one set and no padding row.
+  const CompactSlots one =
+      CompactLabelSlots({r.descriptors.narrow(0, 0, 1).expand({3, 7, kWidth}),
+                         torch::ones({3, 7}, torch::kBool)});
+  EXPECT_EQ(one.descriptors.size(0), 1);
+  EXPECT_EQ(one.weights.sum().item<double>(), 21.0);
+}
+
+// The label encoder over the distinct sets, gathered back, is the encoder
+// over the batch: embeddings, running statistics and gradients, in
+// training (batch statistics over the weighted tokens) and evaluation.
+TEST(LabelEncoder, EncodingTheDistinctSetsIsEncodingTheBatch) {
+  torch::manual_seed(12);
+  LabelEncoderOptions options;
+  options.descriptor_width = kWidth;
+  options.d_model = 12;
+  options.hidden = 10;
+  options.num_layers = 2;
+  options.num_heads = 3;
+  options.fourier_bands = 2;
+  LabelEncoder encoder(options);
+  encoder->to(torch::kDouble);
+  const RepeatedLayouts r = MakeRepeatedLayouts(torch::kDouble);
+  const torch::Tensor upstream = torch::randn({5, 12, 7}, torch::kDouble);
+  const std::vector<torch::Tensor> initial_buffers = [&] {
+    std::vector<torch::Tensor> out;
+    for (const torch::Tensor& b : encoder->buffers()) out.push_back(b.clone());
+    return out;
+  }();
+  struct Run {
+    torch::Tensor embeddings;
+    std::vector<torch::Tensor> grads;
+    std::vector<torch::Tensor> buffers;
+  };
+  auto run = [&](bool compact, bool training) {
+    encoder->train(training);
+    {
+      torch::NoGradGuard no_grad;
+      const std::vector<torch::Tensor> buffers = encoder->buffers();
+      for (size_t i = 0; i < buffers.size(); ++i) {
+        buffers[i].copy_(initial_buffers[i]);
+      }
+    }
+    encoder->zero_grad();
+    Run out;
+    out.embeddings = compact ? encoder->EncodeSlots(r.descriptors, r.mask)
+                             : encoder->forward(r.descriptors, r.mask);
+    (out.embeddings * upstream).sum().backward();
+    for (const torch::Tensor& p : encoder->parameters()) {
+      out.grads.push_back(p.grad().clone());
+    }
+    for (const torch::Tensor& b : encoder->buffers()) {
+      out.buffers.push_back(b.clone());
+    }
+    return out;
+  };
+  for (const bool training : {true, false}) {
+    const Run whole = run(false, training);
+    const Run compact = run(true, training);
+    ASSERT_EQ(compact.embeddings.sizes(), whole.embeddings.sizes());
+    EXPECT_TRUE(
+        torch::allclose(compact.embeddings, whole.embeddings, 1e-10, 1e-10))
+        << "training=" << training << " max diff "
+        << (compact.embeddings - whole.embeddings).abs().max().item<double>();
+    ASSERT_EQ(compact.grads.size(), whole.grads.size());
+    for (size_t i = 0; i < whole.grads.size(); ++i) {
+      EXPECT_TRUE(
+          torch::allclose(compact.grads[i], whole.grads[i], 1e-9, 1e-10))
+          << "training=" << training << " parameter " << i;
+      EXPECT_GT(whole.grads[i].abs().max().item<double>(), 0.0) << i;
+    }
+    for (size_t i = 0; i < whole.buffers.size(); ++i) {
+      EXPECT_TRUE(
+          torch::allclose(compact.buffers[i], whole.buffers[i], 1e-12, 1e-12))
+          << "training=" << training << " buffer " << i;
+    }
+    // Training moved the running statistics (so the check above can fail).
+    if (training) {
+      EXPECT_FALSE(torch::allclose(whole.buffers[0], initial_buffers[0]));
+    }
+  }
+}
+
 TEST(ConditionedLabeler, OutputShapes) {
   torch::manual_seed(1);
   Labeler model = SmallConditionedLabeler(6);

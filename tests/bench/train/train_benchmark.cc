@@ -7,10 +7,16 @@
 // `fast_bf16` the same with train.precision=bf16 (AMX, else AVX512_BF16;
 // skipped where the CPU has neither).
 // `cpu_any_layout_*`: the layout-conditioned labeller (model=soma_any_layout
-// at scale=cpu) on sampled layouts as after the first epoch, every frame its
-// own slot descriptors (L = 53 slots; odd frames hold 39 labels and 14 padded
-// slots, as pig39 beside soma53), N = 56 points; its fast engine runs the
-// label side on torch autograd (FastTrainer::Step).
+// at scale=cpu) on label slots as `soma train` samples them after the first
+// epoch (synth/layout_sampler=mixed with perturbed copies, as the
+// any_layout_perturbed_* variants): L = 96 slots (max_labels), each frame
+// from its own placement block, even frames soma53's 53 labels in their own
+// slot order, odd frames a perturbed copy of 42 labels of their own, the
+// rest padded; N = 56 points. Its fast engine runs the label side on torch
+// autograd (FastTrainer::Step), the label encoder once per distinct label
+// set (CompactLabelSlots). `label_encoder_{whole,compact}`: that label
+// encoder alone (forward and backward, training mode) on the batch's 64 x 96
+// slots as they are, and on its distinct label sets (EncodeSlots).
 // items_per_second = training frames per second; peak_rss_mib = the
 // process's peak resident memory after the run (the rows run in order, so it
 // is cumulative).
@@ -39,8 +45,12 @@ namespace {
 
 constexpr int64_t kNumLabels = 41;
 constexpr int64_t kNumPoints = 44;
-constexpr int64_t kNumSlots = 53;     // the conditioned rows: soma53's labels
-constexpr int64_t kSmallLayout = 39;  // and pig39's on odd frames
+// The conditioned rows: L_max slots (configs/synth/layout_sampler), soma53's
+// labels on even frames, a perturbed copy's on odd frames.
+constexpr int64_t kMaxSlots = 96;
+constexpr int64_t kListedLayout = 53;
+constexpr int64_t kPerturbedLayout = 42;
+constexpr int64_t kConditionedPoints = kListedLayout + 3;
 
 struct Scale {
   ConfigNode model;
@@ -73,6 +83,29 @@ Scale LoadScale(const std::string& name, const std::string& model) {
   return scale;
 }
 
+/// Labels frame `f` of a conditioned batch holds (in slots 0..K-1).
+int64_t ConditionedLabels(int64_t f) {
+  return f % 2 == 0 ? kListedLayout : kPerturbedLayout;
+}
+
+/// A conditioned training batch's label slots (see the header): one listed
+/// layout in a random slot order per even frame, a layout of its own per odd
+/// frame, padded to kMaxSlots.
+LabelSlots TrainingSlots(int64_t batch, int64_t width) {
+  const torch::Tensor listed = torch::randn({kListedLayout, width});
+  LabelSlots slots;
+  slots.descriptors = torch::zeros({batch, kMaxSlots, width});
+  slots.mask = torch::zeros({batch, kMaxSlots}, torch::kBool);
+  for (int64_t f = 0; f < batch; ++f) {
+    const int64_t k = ConditionedLabels(f);
+    slots.descriptors[f].narrow(0, 0, k).copy_(
+        f % 2 == 0 ? listed.index_select(0, torch::randperm(k))
+                   : torch::randn({k, width}));
+    slots.mask[f].narrow(0, 0, k).fill_(true);
+  }
+  return slots;
+}
+
 double PeakRssMib() {
   struct rusage usage {};
   getrusage(RUSAGE_SELF, &usage);
@@ -87,8 +120,8 @@ void BM_TrainStep(benchmark::State& state,
   SetTorchThreads(static_cast<int>(state.range(0)));
   const Scale scale = LoadScale(name, model_name);
   const bool conditioned = model_name == "soma_any_layout";
-  const int64_t num_labels = conditioned ? kNumSlots : kNumLabels;
-  const int64_t num_points = conditioned ? kNumSlots + 3 : kNumPoints;
+  const int64_t num_labels = conditioned ? kMaxSlots : kNumLabels;
+  const int64_t num_points = conditioned ? kConditionedPoints : kNumPoints;
   torch::manual_seed(0);
   Labeler model = BuildLabeler(scale.model, scale.normalization, num_labels);
   model->train();
@@ -97,23 +130,12 @@ void BM_TrainStep(benchmark::State& state,
   const int64_t b = scale.batch_size;
   // Frames: every present label on a point in random order, 3 null points
   // (one ghost, two zero points).
-  LabelSlots slots;
-  if (conditioned) {
-    slots.descriptors =
-        torch::randn({b, num_labels, model->descriptor_width()});
-    slots.mask = torch::ones({b, num_labels}, torch::kBool);
-    for (int64_t f = 1; f < b; f += 2) {
-      slots.mask[f]
-          .narrow(0, kSmallLayout, num_labels - kSmallLayout)
-          .fill_(false);
-    }
-    slots.descriptors.masked_fill_(slots.mask.logical_not().unsqueeze(2), 0.0);
-  }
+  const LabelSlots slots =
+      conditioned ? TrainingSlots(b, model->descriptor_width()) : LabelSlots{};
   torch::Tensor points = torch::randn({b, num_points, 3}) * 0.4;
   torch::Tensor labels = torch::empty({b, num_points}, torch::kLong);
   for (int64_t f = 0; f < b; ++f) {
-    const int64_t present =
-        conditioned && f % 2 == 1 ? kSmallLayout : num_labels;
+    const int64_t present = conditioned ? ConditionedLabels(f) : num_labels;
     const torch::Tensor ids = torch::cat(
         {torch::arange(present),
          torch::full({num_points - present}, num_labels, torch::kLong)});
@@ -169,6 +191,35 @@ void BM_TrainStep(benchmark::State& state,
   state.counters["peak_rss_mib"] = PeakRssMib();
 }
 
+void BM_LabelEncoder(benchmark::State& state, bool compact) {
+  bench::RegisterComponents();
+  SetTorchThreads(static_cast<int>(state.range(0)));
+  const Scale scale = LoadScale("cpu", "soma_any_layout");
+  torch::manual_seed(0);
+  Labeler model = BuildLabeler(scale.model, scale.normalization, kMaxSlots);
+  model->train();
+  const int64_t b = scale.batch_size;
+  const LabelSlots slots = TrainingSlots(b, model->descriptor_width());
+  const torch::Tensor upstream =
+      torch::randn({b, model->options().d_model, kMaxSlots});
+  auto step = [&] {
+    model->zero_grad();
+    const torch::Tensor labels =
+        compact
+            ? model->label_encoder->EncodeSlots(slots.descriptors, slots.mask)
+            : model->label_encoder->forward(slots.descriptors, slots.mask);
+    const torch::Tensor value = (labels * upstream).sum();
+    value.backward();
+    return value.item<double>();
+  };
+  step();
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(step());
+  }
+  state.SetItemsProcessed(state.iterations() * b);
+  state.counters["batch"] = static_cast<double>(b);
+}
+
 // Argument: intra-op threads (1, or 2 = the reference machine's cores).
 BENCHMARK_CAPTURE(BM_TrainStep, cpu_torch, "cpu", "torch")
     ->Arg(1)
@@ -193,6 +244,16 @@ BENCHMARK_CAPTURE(
     ->UseRealTime();
 BENCHMARK_CAPTURE(
     BM_TrainStep, cpu_any_layout_fast, "cpu", "fast", "soma_any_layout")
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_LabelEncoder, label_encoder_whole, false)
+    ->Arg(1)
+    ->Arg(2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+BENCHMARK_CAPTURE(BM_LabelEncoder, label_encoder_compact, true)
     ->Arg(1)
     ->Arg(2)
     ->Unit(benchmark::kMillisecond)
