@@ -30,6 +30,7 @@
 #include <limits>
 #include <mutex>
 #include <sstream>
+#include <string_view>
 #include <unistd.h>
 
 namespace soma {
@@ -116,6 +117,32 @@ torch::serialize::InputArchive OpenCheckpoint(
                               kCheckpointVersion));
   }
   return archive;
+}
+
+/// A model-config key added after checkpoints were first written, and the
+/// value every model before it had.
+struct AddedModelKey {
+  std::string_view parent;  // dotted path in CheckpointInfo::model_config
+  std::string_view key;
+  int64_t value;
+};
+
+/// CheckCompatible fills them into both model configs where absent, so that
+/// fine-tuning and resuming accept a checkpoint written before the key
+/// existed whose model is the configured one.
+constexpr AddedModelKey kAddedModelKeys[] = {
+    {"model.label_encoder", "fourier_bands", 0},  // issue #25, 1917811
+};
+
+void FillAddedModelKeys(ConfigNode* model_config) {
+  for (const AddedModelKey& added : kAddedModelKeys) {
+    ConfigNode* parent = model_config->FindPath(added.parent);
+    if (parent == nullptr || !parent->IsMap() ||
+        parent->Find(added.key) != nullptr) {
+      continue;
+    }
+    parent->Set(added.key, ConfigNode(added.value));
+  }
 }
 
 CheckpointInfo ReadInfo(torch::serialize::InputArchive& archive,
@@ -582,9 +609,13 @@ CheckpointInfo ReadCheckpointInfo(const std::filesystem::path& path) {
 void CheckCompatible(const CheckpointInfo& info,
                      const ModelIdentity& identity,
                      const std::filesystem::path& path) {
+  ConfigNode checkpoint_config = info.model_config;
+  ConfigNode config = identity.model_config;
+  FillAddedModelKeys(&checkpoint_config);
+  FillAddedModelKeys(&config);
   std::string va, vb;
   const std::string diff =
-      FirstDifference(info.model_config, identity.model_config, "", &va, &vb);
+      FirstDifference(checkpoint_config, config, "", &va, &vb);
   if (!diff.empty()) {
     throw ConfigError(fmt::format(
         "Checkpoint {} does not match the model: {} = {} in the checkpoint, "

@@ -189,7 +189,9 @@ CheckpointInfo ReadCheckpointInfo(const std::filesystem::path& path);
 
 /// Throws ConfigError if `info` (from `path`) does not match `identity`,
 /// naming the first differing key (`model.d_model: 16 in the checkpoint, 32
-/// in the config`) or label.
+/// in the config`) or label. A key added to the model config after
+/// checkpoints were first written (`model.label_encoder.fourier_bands`)
+/// reads, where absent on either side, as the value every earlier model had.
 void CheckCompatible(const CheckpointInfo& info,
                      const ModelIdentity& identity,
                      const std::filesystem::path& path);

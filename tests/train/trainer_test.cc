@@ -546,6 +546,29 @@ TEST_F(TrainerTest, ConditionedModelFineTunesOnAnotherLayout) {
   ASSERT_EQ(summary.history.size(), 2u) << summary.BriefReport();
   EXPECT_TRUE(std::isfinite(summary.history.back().val_loss));
 
+  // A checkpoint written before a model key existed (the pre-training's
+  // config has no label_encoder.fourier_bands) starts a model that states
+  // the value every earlier model had, and not one that differs.
+  TrainerOptions load_only = options;
+  load_only.max_epochs = 0;
+  ConfigNode explicit_bands = ConditionedConfig();
+  explicit_bands.at("model").at("label_encoder").Set("fourier_bands", 0);
+  auto stated =
+      MakeTrainer(load_only, root_ / "ft_bands", explicit_bands, Labels());
+  Labeler stated_model = stated->model();
+  stated_model->SetLayout(layout);
+  stated->Train(*train_, *val_);
+  ExpectSameParameters(pre->model(), stated->model());
+  explicit_bands.at("model").at("label_encoder").Set("fourier_bands", 2);
+  const std::string bands_message = testing::ErrorMessage<ConfigError>([&] {
+    MakeTrainer(load_only, root_ / "ft_bands2", explicit_bands, Labels())
+        ->Train(*train_, *val_);
+  });
+  EXPECT_NE(bands_message.find("model.label_encoder.fourier_bands = 0 in the "
+                               "checkpoint, 2 in the config"),
+            std::string::npos)
+      << bands_message;
+
   // Another network is still refused, naming the key.
   ConfigNode wider = ConditionedConfig();
   wider.at("model").Set("d_model", ParseYaml("24", "test"));
