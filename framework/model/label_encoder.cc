@@ -138,10 +138,11 @@ CompactSlots CompactLabelSlots(const LabelSlots& slots) {
   std::unordered_map<std::string, int64_t> set_of;
   std::vector<int64_t> representative;  // a frame holding set u
   std::vector<int64_t> frames_with;     // frames holding set u
+  std::vector<int64_t> padded_with;     // their padded slots together
   std::vector<int64_t> set_size;
   std::vector<int64_t> slot_set(static_cast<size_t>(batch * num_slots), -1);
   std::vector<int64_t> slot_position(slot_set.size(), 0);
-  int64_t padded = 0;
+  std::vector<int64_t> frame_set(static_cast<size_t>(batch), 0);
   std::vector<int64_t> order;
   std::string key;
   for (int64_t b = 0; b < batch; ++b) {
@@ -149,7 +150,6 @@ CompactSlots CompactLabelSlots(const LabelSlots& slots) {
     for (int64_t l = 0; l < num_slots; ++l) {
       if (mask[b * mask_stride + l]) order.push_back(l);
     }
-    padded += num_slots - static_cast<int64_t>(order.size());
     std::sort(order.begin(), order.end(), [&](int64_t i, int64_t j) {
       const int c = std::memcmp(row(b, i), row(b, j), row_bytes);
       return c != 0 ? c < 0 : i < j;
@@ -163,10 +163,14 @@ CompactSlots CompactLabelSlots(const LabelSlots& slots) {
     if (inserted) {
       representative.push_back(b);
       frames_with.push_back(0);
+      padded_with.push_back(0);
       set_size.push_back(static_cast<int64_t>(order.size()));
     }
     const int64_t u = it->second;
-    ++frames_with[static_cast<size_t>(u)];
+    const auto su = static_cast<size_t>(u);
+    frame_set[static_cast<size_t>(b)] = u;
+    ++frames_with[su];
+    padded_with[su] += num_slots - set_size[su];
     for (size_t p = 0; p < order.size(); ++p) {
       const size_t slot = static_cast<size_t>(b * num_slots + order[p]);
       slot_set[slot] = u;
@@ -175,13 +179,15 @@ CompactSlots CompactLabelSlots(const LabelSlots& slots) {
   }
 
   const int64_t sets = static_cast<int64_t>(representative.size());
-  const int64_t rows_out = sets + (padded > 0 ? 1 : 0);
   int64_t columns = 1;
-  for (int64_t size : set_size) columns = std::max(columns, size);
+  for (int64_t u = 0; u < sets; ++u) {
+    const auto su = static_cast<size_t>(u);
+    columns = std::max(columns, set_size[su] + (padded_with[su] > 0 ? 1 : 0));
+  }
   CompactSlots out;
-  out.descriptors = torch::zeros({rows_out, columns, width}, q.options());
-  out.mask = torch::zeros({rows_out, columns}, torch::kBool);
-  out.weights = torch::zeros({rows_out, columns}, torch::kFloat);
+  out.descriptors = torch::zeros({sets, columns, width}, q.options());
+  out.mask = torch::zeros({sets, columns}, torch::kBool);
+  out.weights = torch::zeros({sets, columns}, torch::kFloat);
   out.index = torch::empty({batch * num_slots}, torch::kLong);
   char* d = static_cast<char*>(out.descriptors.data_ptr());
   bool* dm = out.mask.data_ptr<bool>();
@@ -189,22 +195,28 @@ CompactSlots CompactLabelSlots(const LabelSlots& slots) {
   int64_t* index = out.index.data_ptr<int64_t>();
   for (int64_t l = 0; l < batch * num_slots; ++l) {
     const int64_t u = slot_set[static_cast<size_t>(l)];
-    if (u < 0) {  // a padded slot: the padding row's token
-      index[l] = sets * columns;
+    if (u < 0) {  // a padded slot: its set's padding token
+      const int64_t v = frame_set[static_cast<size_t>(l / num_slots)];
+      index[l] = v * columns + set_size[static_cast<size_t>(v)];
       continue;
     }
+    const auto su = static_cast<size_t>(u);
     const int64_t c = slot_position[static_cast<size_t>(l)];
     index[l] = u * columns + c;
-    if (l / num_slots == representative[static_cast<size_t>(u)]) {
+    if (l / num_slots == representative[su]) {
       std::memcpy(d + static_cast<size_t>(u * columns + c) * row_bytes,
                   rows + static_cast<size_t>(l) * row_bytes,
                   row_bytes);
       dm[u * columns + c] = true;
-      w[u * columns + c] =
-          static_cast<float>(frames_with[static_cast<size_t>(u)]);
+      w[u * columns + c] = static_cast<float>(frames_with[su]);
     }
   }
-  if (padded > 0) w[sets * columns] = static_cast<float>(padded);
+  for (int64_t u = 0; u < sets; ++u) {
+    const auto su = static_cast<size_t>(u);
+    if (padded_with[su] > 0) {
+      w[u * columns + set_size[su]] = static_cast<float>(padded_with[su]);
+    }
+  }
   const torch::Device device = slots.descriptors.device();
   out.descriptors = out.descriptors.to(device);
   out.mask = out.mask.to(device);
@@ -233,10 +245,12 @@ torch::Tensor WeightedBatchNorm(torch::nn::BatchNorm1dImpl& bn,
         "channel, got {} tokens",
         count));
   }
-  const torch::Tensor mean = (x * w).sum({0, 2}, /*keepdim=*/true) / count;
+  const std::vector<int64_t> batch_and_tokens = {0, 2};
+  const torch::Tensor mean =
+      (x * w).sum(batch_and_tokens, /*keepdim=*/true) / count;
   const torch::Tensor centred = x - mean;
   const torch::Tensor var =
-      (centred.square() * w).sum({0, 2}, /*keepdim=*/true) / count;
+      (centred.square() * w).sum(batch_and_tokens, /*keepdim=*/true) / count;
   torch::Tensor y = centred * torch::rsqrt(var + options.eps());
   if (options.affine()) {
     y = y * bn.weight.view({1, -1, 1}) + bn.bias.view({1, -1, 1});
@@ -327,7 +341,11 @@ torch::Tensor LabelEncoderImpl::forward(const torch::Tensor& descriptors,
 
 torch::Tensor LabelEncoderImpl::EncodeSlots(const torch::Tensor& descriptors,
                                             const torch::Tensor& mask) {
-  if (descriptors.size(0) == 1) return forward(descriptors, mask);
+  // A gradient for the descriptors belongs to each frame's own rows: the
+  // whole batch then (the compact slots copy a set's rows from one frame).
+  if (descriptors.size(0) == 1 || descriptors.requires_grad()) {
+    return forward(descriptors, mask);
+  }
   const int64_t batch = descriptors.size(0);
   const int64_t num_slots = descriptors.size(1);
   const CompactSlots compact = CompactLabelSlots({descriptors, mask});

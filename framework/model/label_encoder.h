@@ -93,21 +93,20 @@ torch::Tensor CheckLabelSlots(const LabelSlots& slots,
 /// The distinct label sets of a batch's slots (CompactLabelSlots). A
 /// training batch holds a few layouts many times over (one per placement
 /// block, each in its own slot order) padded to L_max slots, and the label
-/// encoder gives a slot an embedding that depends only on its own
-/// descriptor and the set of the frame's labels: not on the slot order
-/// (there is no positional input), nor on the padded slots (masked as
-/// keys). So it needs each distinct set once, and the padded slots once:
-///   row u < U-1 (or < U without padding): one distinct set, its rows in a
-///     canonical order (bytes of the descriptor row), then masked positions;
-///   the last row, when the batch has padded slots: one padded token
-///     (position 0; its embedding is every padded slot's).
-/// `weights` counts the batch's slots each token stands for (0 at the
-/// masked positions), so that the batch norms' statistics over the
-/// compact tokens equal those over the batch's B x L (LabelEncoderImpl::
-/// forward); `index` maps slot (b, l) to token u * C + c. Encoding the
-/// compact slots and gathering by `index` is the encoder of the whole
-/// batch, its values, gradients and running statistics, up to the order
-/// of float sums.
+/// encoder gives a labelled slot an embedding that depends only on its own
+/// descriptor and the set of the frame's labels (there is no positional
+/// input, and padded slots are masked as keys), and every padded slot of a
+/// frame the same one (a zero descriptor that sees the frame's labels and
+/// itself). So it needs each distinct set once: row u holds one set, its
+/// rows in a canonical order (by the bytes of the descriptor row), then,
+/// masked, the set's padding token (when a frame with the set has padded
+/// slots), then masked filler. `weights` counts the batch's slots each
+/// token stands for (0 at the filler), so that the batch norms' statistics
+/// over the compact tokens equal those over the batch's B x L
+/// (LabelEncoderImpl::forward); `index` maps slot (b, l) to token u * C + c.
+/// Encoding the compact slots and gathering by `index` is the encoder of
+/// the whole batch, its values, gradients and running statistics, up to the
+/// order of float sums.
 struct CompactSlots {
   torch::Tensor descriptors;  // U x C x Q float
   torch::Tensor mask;         // U x C bool
@@ -144,7 +143,8 @@ class LabelEncoderImpl : public torch::nn::Module {
   /// forward(descriptors, mask) computed once per distinct label set of the
   /// batch (CompactLabelSlots) and gathered back to `B x D x L`: the same
   /// embeddings, gradients and running statistics, at the cost of the
-  /// batch's distinct layouts instead of its B x L slots.
+  /// batch's distinct layouts instead of its B x L slots. Descriptors that
+  /// require a gradient are encoded whole (forward).
   torch::Tensor EncodeSlots(const torch::Tensor& descriptors,
                             const torch::Tensor& mask);
   const LabelEncoderOptions& options() const { return options_; }

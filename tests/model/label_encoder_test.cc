@@ -125,22 +125,38 @@ TEST(LabelEncoder, CompactSlotsHoldEachDistinctLabelSetOnce) {
   torch::manual_seed(11);
   const RepeatedLayouts r = MakeRepeatedLayouts(torch::kFloat);
   const CompactSlots c = CompactLabelSlots({r.descriptors, r.mask});
-  // Sets A, B, A minus one, and the padding row; 5 columns (A's size).
-  ASSERT_EQ(c.descriptors.sizes(), (std::vector<int64_t>{4, 5, kWidth}));
+  // Sets A, B and A minus one; 6 columns (A's 5 labels and its padding
+  // token).
+  ASSERT_EQ(c.descriptors.sizes(), (std::vector<int64_t>{3, 6, kWidth}));
   ASSERT_EQ(c.index.sizes(), (std::vector<int64_t>{5 * 7}));
   EXPECT_EQ(c.mask.sum().item<int64_t>(), 5 + 3 + 4);
-  // Each token stands for as many slots as the batch holds: A's tokens
-  // for 3 frames, B's and the third set's for 1, the padding token for the
-  // 35 - 15 - 3 - 4 padded slots; the masked positions for none.
+  // Each token stands for as many slots as the batch holds: A's labels for
+  // 3 frames and its padding token for their 3 x 2 padded slots, B's
+  // labels for 1 frame and its padding token for 4 slots, the third set's
+  // for 1 and 3; the filler for none.
   EXPECT_EQ(c.weights.sum().item<double>(), 35.0);
-  EXPECT_EQ(c.weights[0].sum().item<double>(), 15.0);
-  EXPECT_EQ(c.weights[1].sum().item<double>(), 3.0);
-  EXPECT_EQ(c.weights[2].sum().item<double>(), 4.0);
-  EXPECT_EQ(c.weights[3][0].item<double>(), 13.0);
-  EXPECT_EQ(c.weights.masked_select(c.mask.logical_not()).sum().item<double>(),
-            13.0);
+  EXPECT_TRUE(torch::equal(c.weights,
+                           torch::tensor({3.f,
+                                          3.f,
+                                          3.f,
+                                          3.f,
+                                          3.f,
+                                          6.f,
+                                          1.f,
+                                          1.f,
+                                          1.f,
+                                          4.f,
+                                          0.f,
+                                          0.f,
+                                          1.f,
+                                          1.f,
+                                          1.f,
+                                          1.f,
+                                          3.f,
+                                          0.f})
+                               .view({3, 6})));
   // Gathering the tokens by `index` gives back every labelled slot's
-  // descriptor; every padded slot points at the padding token.
+  // descriptor; every padded slot points at its set's padding token.
   const torch::Tensor gathered = c.descriptors.reshape({-1, kWidth})
                                      .index_select(0, c.index)
                                      .view({5, 7, kWidth});
@@ -148,9 +164,10 @@ TEST(LabelEncoder, CompactSlotsHoldEachDistinctLabelSetOnce) {
   EXPECT_TRUE(torch::equal(gathered.masked_select(labelled),
                            r.descriptors.masked_select(labelled)));
   EXPECT_TRUE(
-      torch::equal(c.index.masked_select(r.mask.flatten().logical_not()),
-                   torch::full({13}, int64_t{3 * 5})));
-  // A batch of one layout in one order: one set and no padding row.
+      torch::equal(c.index.view({5, 7}).masked_select(r.mask.logical_not()),
+                   torch::tensor(std::vector<int64_t>{
+                       5, 5, 5, 5, 9, 9, 9, 9, 5, 5, 16, 16, 16})));
+  // A batch of one layout in one order, no padding: one set.
   const CompactSlots one =
       CompactLabelSlots({r.descriptors.narrow(0, 0, 1).expand({3, 7, kWidth}),
                          torch::ones({3, 7}, torch::kBool)});
