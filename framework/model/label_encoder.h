@@ -108,7 +108,7 @@ torch::Tensor CheckLabelSlots(const LabelSlots& slots,
 /// the whole batch, its values, gradients and running statistics, up to the
 /// order of float sums.
 struct CompactSlots {
-  torch::Tensor descriptors;  // U x C x Q float
+  torch::Tensor descriptors;  // U x C x Q, the slots' dtype
   torch::Tensor mask;         // U x C bool
   torch::Tensor weights;      // U x C float
   torch::Tensor index;        // B * L int64, into U * C

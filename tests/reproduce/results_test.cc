@@ -363,6 +363,19 @@ TEST(ResultsTest, ReadmeQuotesThePerturbedLayoutRunAsItsReportSaysIt) {
       "results/any_layout_perturbed/any_layout.csv", cells);
 }
 
+// The conditioned model and the per-layout models at the same 60 epochs
+// (results/any_layout_equal/): the README quotes each on its takes, bold.
+TEST(ResultsTest, ReadmeQuotesTheEqualEpochsRunAsItsReportSaysIt) {
+  ExpectReadmeQuotesBoldAccuracies(
+      "results/any_layout_equal/any_layout.csv",
+      {{"any_layout_perturbed_fourier_60", "hdm05"},
+       {"any_layout_perturbed_fourier_60", "cmu"},
+       {"any_layout_perturbed_fourier_60", "pig"},
+       {"hdm05_layout_60", "hdm05"},
+       {"cmu41_layout_60", "cmu"},
+       {"pig_layout_60", "pig"}});
+}
+
 // Issue #25 item 3: the README's any-layout paragraph quotes the report
 // (conditioned and per-layout models, bold) and the fine-tuning table (the
 // mean over its seeds per target and epoch count, in epoch order).
