@@ -725,7 +725,7 @@ FAIL_COLOR = "tab:red"
 
 def load_claims() -> pd.DataFrame | None:
     """Every results/<name>_claims.csv, in NAMES order, as one DataFrame, or None (with a message) when
-    none exists yet. One row per claim: table, claim, rule, kind (greater|close), metric, better,
+    none exists yet. One row per claim: table, claim, rule, kind (greater|close|not_behind), metric, better,
     better_test, worse, worse_test, tolerance, paper_gap, gap, gap_se (points), paired, verdict
     (pass|fail|not run), within_noise (the boundary is under 2 s.e. from the gap), paper_note."""
     paths = [p for p in (results_dir() / f"{n}_claims.csv" for n in NAMES) if p.is_file()]
