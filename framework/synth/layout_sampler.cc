@@ -106,6 +106,13 @@ LayoutSamplerOptions DecodeLayoutSamplerOptions(const ConfigNode& node) {
   reader.Read("perturbed_layouts", &options.perturbed_layouts);
   reader.Read("perturb_keep", &options.perturb_keep);
   reader.Read("perturb_rings", &options.perturb_rings);
+  std::string draw = "vertex";
+  reader.Read("perturb_draw", &draw);
+  reader.Check("perturb_draw",
+               draw == "vertex" || draw == "ring",
+               "perturb_draw is vertex or ring");
+  options.perturb_draw =
+      draw == "ring" ? PerturbDraw::kRing : PerturbDraw::kVertex;
   // The name says what the sampler draws from.
   const bool listed = !options.layouts.empty();
   const bool pool = options.random_layouts > 0 || options.perturbed_layouts > 0;
@@ -218,7 +225,8 @@ MarkerLayout MakePerturbedLayout(
     double keep,
     int rings,
     std::string_view prefix,
-    Rng* rng) {
+    Rng* rng,
+    PerturbDraw draw) {
   if (layout.markers.empty()) {
     throw ConfigError("MakePerturbedLayout: the layout has no markers");
   }
@@ -244,11 +252,26 @@ MarkerLayout MakePerturbedLayout(
           vertex,
           neighbours.size()));
     }
+    const auto is_taken = [&](int v) {
+      return std::find(taken.begin(), taken.end(), v) != taken.end();
+    };
     std::vector<int> candidates = NRing(neighbours, vertex, rings);
     candidates.push_back(vertex);
-    std::erase_if(candidates, [&](int v) {
-      return std::find(taken.begin(), taken.end(), v) != taken.end();
-    });
+    if (draw == PerturbDraw::kRing) {
+      // The vertices at exactly r rings: the r-ring less the (r-1)-ring.
+      const int r = static_cast<int>(rng->UniformInt(0, rings));
+      std::vector<int> at_r = {vertex};
+      if (r > 0) {
+        at_r = NRing(neighbours, vertex, r);
+        const std::vector<int> inner = NRing(neighbours, vertex, r - 1);
+        std::erase_if(at_r, [&](int v) {
+          return std::binary_search(inner.begin(), inner.end(), v);
+        });
+      }
+      std::erase_if(at_r, is_taken);
+      if (!at_r.empty()) candidates = std::move(at_r);
+    }
+    std::erase_if(candidates, is_taken);
     if (candidates.empty()) continue;  // its whole ring is taken: dropped
     const int moved = candidates[static_cast<size_t>(
         rng->UniformInt(0, static_cast<int64_t>(candidates.size()) - 1))];
@@ -309,7 +332,8 @@ LayoutSampler::LayoutSampler(const BodyModel& body,
                               options_.perturb_keep,
                               options_.perturb_rings,
                               fmt::format("perturbed{:03d}", i),
-                              &rng);
+                              &rng,
+                              options_.perturb_draw);
       AddLayout(vertices, std::move(layout));
     }
   }

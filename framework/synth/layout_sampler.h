@@ -44,6 +44,13 @@
 
 namespace soma {
 
+/// Where MakePerturbedLayout moves a kept marker within its `rings`-ring.
+enum class PerturbDraw {
+  kVertex,  // a uniform vertex of the ring (the marker's own included)
+  kRing,    // a uniform ring distance r in [0, rings], then a uniform vertex
+            // at exactly r rings
+};
+
 /// Options of the layout samplers.
 struct LayoutSamplerOptions {
   /// Built-in layout names (cmu41, pig39, soma53, superset89) or layout JSON
@@ -67,6 +74,12 @@ struct LayoutSamplerOptions {
   double perturb_keep = 0.8;
   /// A kept marker moves to a uniform vertex of its n-ring (itself included).
   int perturb_rings = 3;
+  /// How far a kept marker moves (MakePerturbedLayout): kVertex, to a uniform
+  /// vertex of its perturb_rings-ring (the first version; as the rings grow
+  /// outwards, most markers move nearly perturb_rings rings), or kRing, to a
+  /// uniform vertex at a uniform ring distance in [0, perturb_rings] (as many
+  /// markers near their place as far from it).
+  PerturbDraw perturb_draw = PerturbDraw::kVertex;
   int block_size = 32;        // frames per placement block (REFERENCE 3.3)
   bool shuffle_slots = true;  // random slot order per block
   /// Block b gets group b mod G (the listed layouts, then the pool as one
@@ -79,7 +92,8 @@ struct LayoutSamplerOptions {
 /// Decodes a `synth.layout_sampler` node (`name`: builtin, mixed or random;
 /// `layouts`, `max_labels`, `shuffle_slots`, `random_layouts`,
 /// `random_markers: [min, max]`, `random_min_spacing`, `random_share`,
-/// `random_seed`, `perturbed_layouts`, `perturb_keep`, `perturb_rings`;
+/// `random_seed`, `perturbed_layouts`, `perturb_keep`, `perturb_rings`,
+/// `perturb_draw` (vertex or ring);
 /// unknown keys and other names are ConfigErrors). The block
 /// size is the synthesizer's placement block.
 LayoutSamplerOptions DecodeLayoutSamplerOptions(const ConfigNode& node);
@@ -98,17 +112,21 @@ MarkerLayout MakeRandomLayout(const BodyModel& body,
                               Rng* rng);
 
 /// A perturbed copy of `layout`: each marker kept with probability `keep` (at
-/// least one is), moved to a uniform vertex of the `rings`-ring of its first
-/// vertex (the vertex itself included) that no other marker of the copy
-/// holds, its type and skin distance kept, labelled "<prefix>_<label>".
-/// `neighbours` is VertexNeighbours of the mesh the layout's vertex ids index.
+/// least one is), moved within the `rings`-ring of its first vertex (the
+/// vertex itself included) to a vertex that no other marker of the copy
+/// holds, drawn as `draw` says (kRing: when every vertex at the drawn
+/// distance is taken, a free one of the whole ring), its type and skin
+/// distance kept, labelled "<prefix>_<label>"; a marker whose whole ring is
+/// taken is dropped. `neighbours` is VertexNeighbours of the mesh the
+/// layout's vertex ids index.
 MarkerLayout MakePerturbedLayout(
     const MarkerLayout& layout,
     const std::vector<std::vector<int>>& neighbours,
     double keep,
     int rings,
     std::string_view prefix,
-    Rng* rng);
+    Rng* rng,
+    PerturbDraw draw = PerturbDraw::kVertex);
 
 /// One block's layout and the order of its markers in the slots.
 struct LayoutDraw {

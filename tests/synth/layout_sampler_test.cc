@@ -11,6 +11,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <map>
 #include <set>
 #include <string>
 #include <string_view>
@@ -346,6 +347,53 @@ TEST(MakePerturbedLayout, KeepsMovesAndRenamesTheListedMarkers) {
       1);
 }
 
+TEST(MakePerturbedLayout, TheRingDrawMovesAsManyMarkersNearAsFar) {
+  const BodyModel& body = ProceduralBody();
+  const MarkerLayout soma53 = MakeBuiltinLayout(body, "soma53");
+  const std::vector<std::vector<int>> neighbours = VertexNeighbours(
+      static_cast<int>(body.template_vertices.cols()), body.faces);
+  std::map<std::string, int> source;
+  for (const MarkerLayout::Marker& marker : soma53.markers) {
+    source["p_" + marker.label] = marker.vertex_ids.front();
+  }
+  constexpr int kRings = 4;
+  // The share of moved markers at each edge distance 0..kRings.
+  const auto distances = [&](PerturbDraw draw) {
+    std::vector<double> share(kRings + 1, 0.0);
+    int total = 0;
+    for (uint64_t seed = 0; seed < 30; ++seed) {
+      Rng rng(seed);
+      const MarkerLayout copy =
+          MakePerturbedLayout(soma53, neighbours, 1.0, kRings, "p", &rng, draw);
+      for (const MarkerLayout::Marker& marker : copy.markers) {
+        const int from = source.at(marker.label);
+        const int to = marker.vertex_ids.front();
+        int r = 0;  // the least r whose r-ring holds `to`
+        while (to != from && r <= kRings &&
+               !std::ranges::binary_search(NRing(neighbours, from, r), to)) {
+          ++r;
+        }
+        if (r > kRings) {
+          ADD_FAILURE() << marker.label << " left its ring";
+          continue;
+        }
+        share[r] += 1.0;
+        ++total;
+      }
+    }
+    for (double& s : share) s /= total;
+    return share;
+  };
+  const std::vector<double> ring = distances(PerturbDraw::kRing);
+  for (int r = 0; r <= kRings; ++r) {
+    EXPECT_NEAR(ring[r], 1.0 / (kRings + 1), 0.06) << "distance " << r;
+  }
+  // The vertex draw (the default) puts most markers on the outer rings.
+  const std::vector<double> vertex = distances(PerturbDraw::kVertex);
+  EXPECT_GT(vertex[kRings], 0.35);
+  EXPECT_LT(vertex[0], 0.05);
+}
+
 TEST(LayoutSampler, PerturbedCopiesOfTheListedLayoutsJoinThePool) {
   LayoutSamplerOptions options;
   options.layouts = {"soma53"};
@@ -396,7 +444,14 @@ TEST(LayoutSamplerOptions, DecodesThePerturbedLayoutsAndRejectsBadValues) {
   EXPECT_EQ(options.perturbed_layouts, 5);
   EXPECT_EQ(options.perturb_keep, 0.7);
   EXPECT_EQ(options.perturb_rings, 3);
+  EXPECT_EQ(options.perturb_draw, PerturbDraw::kVertex);
+  EXPECT_EQ(DecodeLayoutSamplerOptions(
+                Yaml("{name: mixed, layouts: [soma53], perturbed_layouts: 5, "
+                     "perturb_rings: 8, perturb_draw: ring}"))
+                .perturb_draw,
+            PerturbDraw::kRing);
   for (const char* bad : {
+           "{name: mixed, perturbed_layouts: 3, perturb_draw: far}",
            "{name: builtin, perturbed_layouts: 3}",
            "{name: random, layouts: [], perturbed_layouts: 3}",
            "{name: mixed, perturbed_layouts: -1}",
