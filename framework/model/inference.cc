@@ -77,11 +77,19 @@ FrameLabeler& FrameLabeler::operator=(FrameLabeler&&) noexcept = default;
 int64_t FrameLabeler::num_labels() const { return model_->num_labels(); }
 
 FrameLabels FrameLabeler::Label(const at::Tensor& points_in,
-                                int64_t first_frame) const {
+                                int64_t first_frame,
+                                const LabelSlots* slots) const {
   if (points_in.dim() != 3 || points_in.size(2) != 3) {
     throw ShapeError(
         fmt::format("FrameLabeler: points must be T x P x 3, got {}",
                     ShapeString(points_in)));
+  }
+  if (slots != nullptr && (slots->descriptors.dim() != 3 ||
+                           slots->descriptors.size(0) != points_in.size(0))) {
+    throw ShapeError(fmt::format(
+        "FrameLabeler: slots must be T x L x Q for {} frames, got {}",
+        points_in.size(0),
+        ShapeString(slots->descriptors)));
   }
   c10::InferenceMode inference_mode;
   const torch::Tensor points =
@@ -109,8 +117,17 @@ FrameLabels FrameLabeler::Label(const at::Tensor& points_in,
       order = torch::tensor(indices, torch::kLong).view({t1 - t0, p});
       batch = batch.gather(1, order.unsqueeze(-1).expand({t1 - t0, p, 3}));
     }
-    LabelerOutput out =
-        fast_ != nullptr ? fast_->Forward(batch) : model_->forward(batch);
+    LabelerOutput out;
+    if (slots != nullptr) {
+      LabelSlots frame_slots;
+      frame_slots.descriptors = slots->descriptors.narrow(0, t0, t1 - t0);
+      if (slots->mask.defined()) {
+        frame_slots.mask = slots->mask.narrow(0, t0, t1 - t0);
+      }
+      out = model_->ForwardSlots(batch, frame_slots);
+    } else {
+      out = fast_ != nullptr ? fast_->Forward(batch) : model_->forward(batch);
+    }
     torch::Tensor confidence = out.label_confidence;
     torch::Tensor ids = out.label_ids;
     if (order.defined()) {

@@ -21,6 +21,7 @@ namespace soma {
 
 class LabelerImpl;
 class FastLabeler;
+struct LabelSlots;
 
 /// Options of FrameLabeler.
 struct InferenceOptions {
@@ -75,8 +76,12 @@ class FrameLabeler {
   /// `points`: `T x P x 3` float, (0,0,0) = missing/padding. Frame t is
   /// permuted with Rng(seed).Stream(first_frame + t): a stream labelling one
   /// frame per call passes the frame's index to get the permutation of an
-  /// offline call over the whole take.
-  FrameLabels Label(const at::Tensor& points, int64_t first_frame = 0) const;
+  /// offline call over the whole take. `slots` (a conditioned labeler only):
+  /// each frame's own label slots, `T x L x Q` (GatherLabelSlots), in place
+  /// of the layout the model holds; label ids then index each frame's slots.
+  FrameLabels Label(const at::Tensor& points,
+                    int64_t first_frame = 0,
+                    const LabelSlots* slots = nullptr) const;
 
   int64_t num_labels() const;
   bool uses_fast_path() const { return fast_ != nullptr; }

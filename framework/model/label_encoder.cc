@@ -54,6 +54,35 @@ void LabelEncoderOptions::Validate() const {
   }
 }
 
+LabelSlots GatherLabelSlots(const LabeledFrames& frames,
+                            const SlotTable& table) {
+  if (table.num_rows() == 0) {
+    throw InternalError(
+        "GatherLabelSlots: the frames carry label slots but the slot table "
+        "is empty");
+  }
+  const int64_t b = frames.num_frames();
+  const int64_t s = frames.num_slots;
+  const int64_t g = table.num_rows();
+  const auto width = static_cast<int64_t>(table.width);
+  // The table's rows and one zero row for the padded slots.
+  const torch::Tensor rows = torch::cat(
+      {torch::from_blob(
+           const_cast<float*>(table.rows.data()), {g, width}, torch::kFloat),
+       torch::zeros({1, width})});
+  const torch::Tensor ids =
+      torch::from_blob(
+          const_cast<int16_t*>(frames.slots.data()), {b, s}, torch::kShort)
+          .to(torch::kLong);
+  const torch::Tensor padded = ids.lt(0);
+  LabelSlots slots;
+  slots.descriptors =
+      rows.index_select(0, torch::where(padded, g, ids).flatten())
+          .view({b, s, width});
+  slots.mask = padded.logical_not();
+  return slots;
+}
+
 torch::Tensor WithFourierFeatures(const torch::Tensor& descriptors,
                                   int64_t bands) {
   if (bands == 0) return descriptors;

@@ -23,6 +23,7 @@
 
 #include "framework/body/body_model.h"
 #include "framework/body/marker_layout.h"
+#include "framework/io/mocap_dataset.h"
 #include "framework/model/layers.h"
 
 #include <torch/nn/module.h>
@@ -72,6 +73,12 @@ struct LabelSlots {
   torch::Tensor descriptors;
   torch::Tensor mask;
 };
+
+/// The label slots of layout-sampled frames (LabeledFrames::slots, rows of
+/// `table`, -1 padded): `B x S x Q` descriptors (padded slots zero) and the
+/// `B x S` mask. InternalError when `table` has no rows.
+LabelSlots GatherLabelSlots(const LabeledFrames& frames,
+                            const SlotTable& table);
 
 /// The label slots of `layout` on `body` (LayoutDescriptors of
 /// vertex_descriptors.h at the body's template) as an `L x Q` float tensor,

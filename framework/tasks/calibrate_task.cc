@@ -19,7 +19,9 @@
 // edits the stored config otherwise (`[layout.path=...]`).
 //
 // Per frame the labeler (the label task's FrameLabeler: permutation, fast
-// path) gives every point a distribution over the L labels and null; T
+// path) gives every point a distribution over the L labels and null (a
+// layout-conditioned model trained on sampled layouts: over the frame's own
+// label slots, padded ones included, as `soma label` applies T); T
 // minimises the mean negative log-likelihood of the true labels (ghosts:
 // null) over every non-padding point.
 //
@@ -39,6 +41,7 @@
 #include "framework/core/timer.h"
 #include "framework/eval/calibration.h"
 #include "framework/model/inference.h"
+#include "framework/model/label_encoder.h"
 #include "framework/model/labeler.h"
 #include "framework/model/torch_utils.h"
 #include "framework/registry/registry.h"
@@ -188,10 +191,21 @@ class CalibrateTask : public Task {
              seed,
              timer.ElapsedSeconds());
 
-    // The labeler's distributions.
+    // The labeler's distributions; a layout-conditioned model trained on
+    // sampled layouts labels each frame against its own sampled layout's
+    // slots, as its validation did.
     Labeler model = LoadLabelerFromCheckpoint(checkpoint);
     const FrameLabeler labeler(model.ptr(), options_.inference);
-    const FrameLabels out = labeler.Label(points);
+    LabelSlots slots;
+    if (data.num_slots > 0) {
+      slots = GatherLabelSlots(data, *source.slot_table());
+      SOMA_LOG(INFO,
+               "calibrate: the frames carry their sampled layouts ({} label "
+               "slots each); each frame is labelled against its own",
+               data.num_slots);
+    }
+    const FrameLabels out =
+        labeler.Label(points, 0, data.num_slots > 0 ? &slots : nullptr);
     const at::Tensor probs = out.label_confidence.contiguous();
     auto p = probs.accessor<float, 3>();
     auto ids = out.label_ids.accessor<int64_t, 2>();

@@ -214,36 +214,6 @@ struct Tensors {
   LabelSlots slots;
 };
 
-/// The label slots of `frames` (LabeledFrames::slots, rows of `table`).
-void GatherSlots(const LabeledFrames& frames,
-                 const SlotTable* table,
-                 Tensors* t) {
-  if (frames.num_slots == 0) return;
-  if (table == nullptr || table->num_rows() == 0) {
-    throw InternalError(
-        "Trainer: the frames carry label slots but their source has no slot "
-        "table");
-  }
-  const int64_t b = frames.num_frames();
-  const int64_t s = frames.num_slots;
-  const int64_t g = table->num_rows();
-  const torch::Tensor rows =
-      torch::cat({torch::from_blob(const_cast<float*>(table->rows.data()),
-                                   {g, static_cast<int64_t>(table->width)},
-                                   torch::kFloat),
-                  torch::zeros({1, static_cast<int64_t>(table->width)})});
-  const torch::Tensor ids =
-      torch::from_blob(
-          const_cast<int16_t*>(frames.slots.data()), {b, s}, torch::kShort)
-          .to(torch::kLong);
-  const torch::Tensor padded = ids.lt(0);
-  const torch::Tensor index = torch::where(padded, g, ids);
-  t->has_slots = true;
-  t->slots.descriptors =
-      rows.index_select(0, index.flatten()).view({b, s, table->width});
-  t->slots.mask = padded.logical_not();
-}
-
 Tensors ToTensors(const LabeledFrames& frames,
                   const SlotTable* table = nullptr) {
   const int64_t b = frames.num_frames();
@@ -257,7 +227,15 @@ Tensors ToTensors(const LabeledFrames& frames,
       torch::from_blob(
           const_cast<int16_t*>(frames.labels.data()), {b, n}, torch::kShort)
           .to(torch::kLong);
-  GatherSlots(frames, table, &t);
+  if (frames.num_slots > 0) {
+    if (table == nullptr) {
+      throw InternalError(
+          "Trainer: the frames carry label slots but their source has no "
+          "slot table");
+    }
+    t.has_slots = true;
+    t.slots = GatherLabelSlots(frames, *table);
+  }
   return t;
 }
 

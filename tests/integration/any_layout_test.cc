@@ -9,7 +9,9 @@
 #include "framework/body/marker_layout.h"
 #include "framework/body/procedural_body.h"
 #include "framework/config/app.h"
+#include "framework/config/yaml_io.h"
 #include "framework/core/file.h"
+#include "framework/eval/calibration.h"
 #include "framework/io/c3d.h"
 #include "framework/model/label_encoder.h"
 #include "framework/model/labeler.h"
@@ -156,6 +158,29 @@ TEST(AnyLayout, TrainsOnALayoutPerPlacementBlockAndResumes) {
   ASSERT_TRUE(model->conditioned());
   EXPECT_EQ(model->num_labels(), 96);
   EXPECT_FALSE(model->layout_descriptors.ne(0).any().item<bool>());
+
+  // soma calibrate labels each validation frame against its own sampled
+  // layout, as the training's validation did: the same accuracy.
+  std::string err;
+  ASSERT_EQ(testing::RunSomaTask(
+                dir,
+                {"calibrate",
+                 "hydra.run.dir=calibrate",
+                 "task.checkpoint=" + best.string(),
+                 "task.output=" + (dir / "calibration.yaml").string()},
+                &err),
+            0)
+      << err;
+  EXPECT_THAT(ReadFile(dir / "calibrate" / "soma.log"),
+              ::testing::HasSubstr("each frame is labelled against its own"));
+  const ConfigNode calibrated =
+      ParseYaml(ReadFile(dir / "calibrate" / "metrics.yaml"), "metrics.yaml");
+  const ConfigNode trained =
+      ParseYaml(ReadFile(run / "metrics.yaml"), "metrics.yaml");
+  EXPECT_NEAR(calibrated.at("accuracy").AsDouble(),
+              trained.at("val_acc").AsDouble(),
+              1e-3);
+  EXPECT_GT(ReadCalibration(dir / "calibration.yaml").temperature, 0.0);
 
   // Resumes in the same run dir.
   ASSERT_EQ(RunHydraApp(
