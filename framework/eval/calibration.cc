@@ -159,6 +159,65 @@ TemperatureFit FitTemperature(const std::vector<float>& log_probs,
   return fit;
 }
 
+TemperatureFit FitTemperatureByEce(const std::vector<float>& log_probs,
+                                   const std::vector<int>& targets,
+                                   const std::vector<int>& chosen,
+                                   int cols,
+                                   int num_bins,
+                                   const TemperatureFitOptions& options) {
+  options.Validate();
+  CheckSamples(log_probs, chosen, cols);
+  CheckSamples(log_probs, targets, cols);
+  if (targets.empty()) {
+    throw ShapeError("temperature fit: no samples");
+  }
+  const size_t n = targets.size();
+  // Per sample: the row less its maximum (the chosen column's confidence at
+  // T is exp(d_chosen / T) / sum_c exp(d_c / T), d <= 0).
+  std::vector<float> shifted(log_probs.size());
+  std::vector<bool> correct(n);
+  for (size_t i = 0; i < n; ++i) {
+    const float* row = log_probs.data() + i * cols;
+    const float top = *std::max_element(row, row + cols);
+    for (int c = 0; c < cols; ++c) shifted[i * cols + c] = row[c] - top;
+    correct[i] = chosen[i] == targets[i];
+  }
+  std::vector<double> confidence(n);
+  auto ece = [&](double temperature) {
+    const float inv = static_cast<float>(1.0 / temperature);
+    for (size_t i = 0; i < n; ++i) {
+      const float* d = shifted.data() + i * cols;
+      float sum = 0;
+      for (int c = 0; c < cols; ++c) sum += std::exp(d[c] * inv);
+      confidence[i] = std::exp(d[chosen[i]] * inv) / sum;
+    }
+    return ComputeReliability(confidence, correct, num_bins).ece;
+  };
+  // Coarse, then fine, log grids; the first least value wins ties.
+  const double lo = std::log(options.min_temperature);
+  const double hi = std::log(options.max_temperature);
+  double best = 0, best_ece = ece(1.0);
+  auto scan = [&](double from, double to, double step) {
+    for (double x = from; x <= to + 1e-12; x += step) {
+      const double e = ece(std::exp(x));
+      if (e < best_ece) {
+        best_ece = e;
+        best = x;
+      }
+    }
+  };
+  const double coarse = std::log(1.05);
+  scan(lo, hi, coarse);
+  scan(std::max(lo, best - coarse), std::min(hi, best + coarse), coarse / 20);
+  TemperatureFit fit;
+  fit.temperature = std::exp(best);
+  fit.samples = static_cast<int64_t>(n);
+  fit.nll_before = MeanNll(log_probs, targets, cols, 1.0);
+  fit.nll_after = MeanNll(log_probs, targets, cols, fit.temperature);
+  fit.at_bound = best - lo < coarse || hi - best < coarse;
+  return fit;
+}
+
 Reliability ComputeReliability(const std::vector<double>& confidence,
                                const std::vector<bool>& correct,
                                int num_bins) {

@@ -79,6 +79,22 @@ TemperatureFit FitTemperature(const std::vector<float>& log_probs,
                               int cols,
                               const TemperatureFitOptions& options = {});
 
+/// The T whose scaled rows give the least expected calibration error
+/// (ComputeReliability's, `num_bins` bins) of the confidence of each
+/// sample's `chosen` column (its label, before any threshold) against
+/// whether it is the target: a log grid of 5% steps over the options'
+/// interval, then 0.25% steps around the best. ECE is not smooth in T, so no
+/// bracketing search; it is what a reliability diagram shows, where the NLL
+/// weighs the target's probability on wrong labels too. The NLL fields are
+/// filled as FitTemperature's. ShapeError as FitTemperature's, or for a
+/// `chosen` of another size or out of range.
+TemperatureFit FitTemperatureByEce(const std::vector<float>& log_probs,
+                                   const std::vector<int>& targets,
+                                   const std::vector<int>& chosen,
+                                   int cols,
+                                   int num_bins,
+                                   const TemperatureFitOptions& options = {});
+
 /// One bin of a reliability diagram.
 struct ReliabilityBin {
   double lower = 0, upper = 0;  // confidence interval [lower, upper)

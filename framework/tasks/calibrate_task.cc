@@ -21,9 +21,14 @@
 // Per frame the labeler (the label task's FrameLabeler: permutation, fast
 // path) gives every point a distribution over the L labels and null (a
 // layout-conditioned model trained on sampled layouts: over the frame's own
-// label slots, padded ones included, as `soma label` applies T); T
-// minimises the mean negative log-likelihood of the true labels (ghosts:
-// null) over every non-padding point.
+// label slots, padded ones included, as `soma label` applies T), over
+// every non-padding point (ghosts' true label: null).
+//
+// task.objective=nll (default) fits T by the least mean negative
+// log-likelihood of the true labels, ece by the least expected calibration
+// error of the given labels' confidences (FitTemperatureByEce): the NLL
+// also weighs how little probability a wrong label left to the right one,
+// and can soften confidences that a reliability diagram shows were right.
 //
 // Outputs: `calibration.yaml` (the run directory, and task.output: auto =
 // beside the checkpoint, where `soma label` finds it), `reliability.csv` and
@@ -71,6 +76,8 @@ struct CalibrateOptions {
   std::string output = "auto";
   std::vector<std::string> overrides;  // edits of the stored training config
   int num_bins = 15;
+  /// What T minimises: nll (Guo et al.) or ece (FitTemperatureByEce).
+  std::string objective = "nll";
   InferenceOptions inference;
 };
 
@@ -212,6 +219,7 @@ class CalibrateTask : public Task {
     std::vector<float> log_probs;
     std::vector<int> targets;
     std::vector<double> conf_raw;
+    std::vector<int> chosen;
     std::vector<bool> correct;
     for (int64_t t = 0; t < frames; ++t) {
       const float* xyz = data.frame_points(t);
@@ -225,10 +233,15 @@ class CalibrateTask : public Task {
         const int target = std::clamp<int>(gt[n], 0, L);
         targets.push_back(target);
         conf_raw.push_back(p[t][n][ids[t][n]]);
+        chosen.push_back(static_cast<int>(ids[t][n]));
         correct.push_back(ids[t][n] == target);
       }
     }
-    const TemperatureFit fit = FitTemperature(log_probs, targets, L + 1);
+    const TemperatureFit fit =
+        options_.objective == "ece"
+            ? FitTemperatureByEce(
+                  log_probs, targets, chosen, L + 1, options_.num_bins)
+            : FitTemperature(log_probs, targets, L + 1);
     if (fit.at_bound) {
       SOMA_LOG(WARNING,
                "calibrate: the temperature {:.3f} is at the edge of the "
@@ -267,10 +280,11 @@ class CalibrateTask : public Task {
     c.checkpoint_fnv1a64 = FileFingerprint(checkpoint);
     c.fitted_on = fmt::format(
         "{} synthetic validation frames of the training config (seed {}, "
-        "data/val stream), {} points",
+        "data/val stream), {} points, least {}",
         frames,
         seed,
-        targets.size());
+        targets.size(),
+        options_.objective == "ece" ? "ECE" : "NLL");
     c.frames = frames;
     c.points = static_cast<int64_t>(targets.size());
     c.nll_before = fit.nll_before;
@@ -279,10 +293,13 @@ class CalibrateTask : public Task {
     c.ece_before = before.ece;
     c.ece_after = after.ece;
     c.command =
-        fmt::format("soma calibrate task.checkpoint={}{}",
+        fmt::format("soma calibrate task.checkpoint={}{}{}",
                     checkpoint,
                     options_.frames > 0 ? fmt::format(" task.frames={}", frames)
-                                        : std::string());
+                                        : std::string(),
+                    options_.objective != "nll"
+                        ? fmt::format(" task.objective={}", options_.objective)
+                        : std::string());
     c.code_version = GetBuildInfo().version;
     WriteCalibration(ctx.output_dir / kCalibrationFileName, c);
     const fs::path output =
@@ -359,6 +376,10 @@ void RegisterCalibrateTask(Registry<Task>& registry) {
     reader.Read("output", &options.output);
     reader.Read("overrides", &options.overrides);
     reader.Read("num_bins", &options.num_bins);
+    reader.Read("objective", &options.objective);
+    reader.Check("objective",
+                 options.objective == "nll" || options.objective == "ece",
+                 "objective is nll or ece");
     if (const ConfigNode* inference = reader.Child("inference")) {
       options.inference = DecodeInferenceOptions(*inference);
     }

@@ -75,6 +75,51 @@ TEST(Calibration, FitRecoversTheTemperatureOfSyntheticLogits) {
   }
 }
 
+TEST(Calibration, FitByEceFindsTheTemperatureOfAReliabilityDiagram) {
+  for (const double true_t : {0.5, 2.0}) {
+    std::vector<int> targets;
+    const std::vector<float> log_probs =
+        SyntheticLogits(20000, 12, true_t, 11, &targets);
+    // The chosen label: each row's argmax.
+    std::vector<int> chosen(targets.size());
+    for (size_t i = 0; i < targets.size(); ++i) {
+      const float* row = log_probs.data() + i * 12;
+      chosen[i] = static_cast<int>(std::max_element(row, row + 12) - row);
+    }
+    const auto ece_at = [&](double t) {
+      std::vector<double> confidence(targets.size());
+      std::vector<bool> correct(targets.size());
+      std::vector<float> row(12);
+      for (size_t i = 0; i < targets.size(); ++i) {
+        std::copy_n(log_probs.begin() + i * 12, 12, row.begin());
+        ApplyTemperature(row.data(), 1, 12, t);
+        confidence[i] = row[chosen[i]];
+        correct[i] = chosen[i] == targets[i];
+      }
+      return ComputeReliability(confidence, correct, 15).ece;
+    };
+    const TemperatureFit fit =
+        FitTemperatureByEce(log_probs, targets, chosen, 12, 15);
+    EXPECT_NEAR(fit.temperature, true_t, 0.1 * true_t) << "T = " << true_t;
+    EXPECT_FALSE(fit.at_bound);
+    EXPECT_EQ(fit.samples, 20000);
+    EXPECT_DOUBLE_EQ(fit.nll_after,
+                     MeanNll(log_probs, targets, 12, fit.temperature));
+    // No better ECE on either side, nor at T = 1.
+    const double best = ece_at(fit.temperature);
+    EXPECT_LE(best, ece_at(1.0));
+    EXPECT_LE(best, ece_at(fit.temperature * 1.05) + 1e-12);
+    EXPECT_LE(best, ece_at(fit.temperature / 1.05) + 1e-12);
+  }
+  // A chosen column out of range.
+  std::vector<int> targets;
+  const std::vector<float> log_probs = SyntheticLogits(10, 4, 1.0, 3, &targets);
+  std::vector<int> chosen(10, 0);
+  chosen[4] = 4;
+  EXPECT_THROW(FitTemperatureByEce(log_probs, targets, chosen, 4, 15),
+               ShapeError);
+}
+
 TEST(Calibration, MeanNllByHand) {
   // One sample, p = (0.5, 0.25, 0.25), target 1: NLL log 4 at T = 1; at
   // T = 0.5 the row becomes (1/4, 1/16, 1/16) / (6/16) -> p1 = 1/6.
