@@ -91,7 +91,7 @@ TEST(Calibration, FitByEceFindsTheTemperatureOfAReliabilityDiagram) {
       std::vector<bool> correct(targets.size());
       std::vector<float> row(12);
       for (size_t i = 0; i < targets.size(); ++i) {
-        std::copy_n(log_probs.begin() + i * 12, 12, row.begin());
+        for (int c = 0; c < 12; ++c) row[c] = std::exp(log_probs[i * 12 + c]);
         ApplyTemperature(row.data(), 1, 12, t);
         confidence[i] = row[chosen[i]];
         correct[i] = chosen[i] == targets[i];
@@ -107,7 +107,7 @@ TEST(Calibration, FitByEceFindsTheTemperatureOfAReliabilityDiagram) {
                      MeanNll(log_probs, targets, 12, fit.temperature));
     // No better ECE on either side, nor at T = 1.
     const double best = ece_at(fit.temperature);
-    EXPECT_LE(best, ece_at(1.0));
+    EXPECT_LT(best, ece_at(1.0) / 2);  // the model is miscalibrated at T = 1
     EXPECT_LE(best, ece_at(fit.temperature * 1.05) + 1e-12);
     EXPECT_LE(best, ece_at(fit.temperature / 1.05) + 1e-12);
   }
