@@ -14,21 +14,25 @@ DATA=${DATA:-../shared/data/c3d}
 RUNS=${RUNS:-/tmp/confidence_runs/$NAME}
 OUT=results/confidence/$NAME
 mkdir -p "$OUT"
-# 1. The temperature, on the training run's synthetic validation frames.
-./build/soma calibrate task.checkpoint="$CKPT" task.output="$OUT/calibration.yaml" \
-    hydra.run.dir="$RUNS/calibrate" threads=1
-cp "$RUNS/calibrate/reliability.csv" "$OUT/synthetic_reliability.csv"
-cp "$RUNS/calibrate/reliability.png" "$OUT/synthetic_reliability.png"
-cp "$RUNS/calibrate/metrics.yaml" "$OUT/synthetic_metrics.yaml"
-# 2. label_eval (OC_05_G_03_BT_00, seed 0), rows renormalised (T = 1) and
-#    with the fitted temperature.
+# 1. The temperature, on the training run's synthetic validation frames, by
+#    the least NLL (the default) and by the least ECE.
+for objective in nll ece; do
+  ./build/soma calibrate task.checkpoint="$CKPT" task.objective=$objective \
+      task.output="$OUT/calibration_$objective.yaml" \
+      hydra.run.dir="$RUNS/calibrate_$objective" threads=1
+  for f in reliability.csv reliability.png metrics.yaml; do
+    cp "$RUNS/calibrate_$objective/$f" "$OUT/synthetic_${objective}_$f"
+  done
+done
+# 2. label_eval (OC_05_G_03_BT_00, seed 0): rows renormalised (T = 1), and
+#    with each fitted temperature.
 for spec in "hdm05 HDM_mm_01-02_03_120 layout=file layout.path=results/layouts/hdm05.json" \
             "cmu cmu_01_01 layout=cmu41"; do
   set -- $spec
   test=$1 take=$2
   shift 2
-  for cal in none calibrated; do
-    file=none; [[ $cal == calibrated ]] && file="$OUT/calibration.yaml"
+  for cal in none nll ece; do
+    file=none; [[ $cal != none ]] && file="$OUT/calibration_$cal.yaml"
     run="$RUNS/label_eval_${test}_$cal"
     ./build/soma label_eval "$DATA/$take.c3d" task.checkpoint="$CKPT" \
         task.calibration="$file" "$@" hydra.run.dir="$run" threads=1
