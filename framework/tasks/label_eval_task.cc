@@ -251,17 +251,24 @@ class LabelEvalTask : public Task {
       CheckMarkerNameMap(name_map, info.labels, "the labeller");
     }
 
-    // 2. The take, corrupted by the paper's protocol.
-    const LabeledSequence clean = ReadLabeledC3d(input, info.labels);
+    // 2. The take, corrupted by the paper's protocol. Its markers are read
+    // under the labeller's labels' canonical names (a layout file may name
+    // a marker by an alias of the take's name, e.g. LASI for LFWT), as
+    // `soma corrupt` reads them.
+    std::vector<std::string> canonical;
+    for (const std::string& label : info.labels) {
+      canonical.push_back(CanonicalMarkerLabel(label));
+    }
+    const LabeledSequence clean = ReadLabeledC3d(input, canonical);
     {
       std::set<std::string> present;
       for (const std::string& c : clean.column_names) {
         present.insert(CanonicalMarkerLabel(c));
       }
       std::vector<std::string> lacking;
-      for (const std::string& label : info.labels) {
-        if (present.count(CanonicalMarkerLabel(label)) == 0) {
-          lacking.push_back(label);
+      for (size_t i = 0; i < canonical.size(); ++i) {
+        if (present.count(canonical[i]) == 0) {
+          lacking.push_back(info.labels[i]);
         }
       }
       if (!lacking.empty()) {
