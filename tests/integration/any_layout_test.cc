@@ -285,6 +285,27 @@ TEST(AnyLayout, LabelsWithALayoutGivenAtLabelTime) {
   const C3dData evaluated =
       ReadC3d(dir / "eval" / "per_frame" / "cmu_01_01_f0-599_labeled.c3d");
   EXPECT_EQ(evaluated.labels[0], MakeBuiltinLayout(body, "cmu41").Labels()[0]);
+  // A layout that names the take's markers by aliases (Plug-in Gait's LASI,
+  // RASI, LPSI, RPSI for the CMU take's LFWT, RFWT, LBWT, RBWT): the take is
+  // read under the canonical names, so those markers are scored, not lost.
+  ASSERT_EQ(testing::RunSomaTask(
+                dir,
+                {"label_eval",
+                 "hydra.run.dir=eval_pig39",
+                 "task.input=" + clip.string(),
+                 "task.checkpoint=" +
+                     (dir / "sampled" / "checkpoints/best.pt").string(),
+                 "layout=pig39"},
+                &err),
+            0)
+      << err;
+  const std::string pig39_log = ReadFile(dir / "eval_pig39" / "soma.log");
+  for (const char* alias : {"LASI", "RASI", "LPSI", "RPSI"}) {
+    EXPECT_THAT(pig39_log,
+                ::testing::Not(::testing::ContainsRegex(
+                    std::string("labels are not in .*") + alias)))
+        << pig39_log;
+  }
 
   // `soma stream` with a layout given at label time: the live labels are
   // that layout's, on the optimised forward (the layout's label keys folded
