@@ -2,8 +2,9 @@
 # Calibrated confidence of a layout-conditioned model (issue #25 item 4;
 # results/confidence/README.md, "The layout-conditioned model"): the
 # temperature fitted on the model's own synthetic validation frames, each
-# labelled against its sampled layout, then label_eval on the two real
-# 41-marker takes with the take's layout given at label time. From the
+# labelled against its sampled layout, then label_eval on the real takes of
+# `soma reproduce any_layout` (HDM05, CMU, Plug-in Gait) with the take's
+# layout given at label time. From the
 # repository root with build/soma built and the fitted layouts made
 # (bash ablations/make_layouts.sh).
 #   CKPT=<run>/checkpoints/best.pt NAME=<dir name> bash results/confidence/run_any_layout.sh
@@ -27,7 +28,8 @@ done
 # 2. label_eval (OC_05_G_03_BT_00, seed 0): rows renormalised (T = 1), and
 #    with each fitted temperature.
 for spec in "hdm05 HDM_mm_01-02_03_120 layout=file layout.path=results/layouts/hdm05.json" \
-            "cmu cmu_01_01 layout=cmu41"; do
+            "cmu cmu_01_01 layout=cmu41" \
+            "pig PiG_Motion-FlatFoot-Hole layout=file layout.path=results/layouts/pig.json layout.allow_unknown_labels=true"; do
   set -- $spec
   test=$1 take=$2
   shift 2
