@@ -376,6 +376,23 @@ TEST(ResultsTest, ReadmeQuotesTheEqualEpochsRunAsItsReportSaysIt) {
        {"pig_layout_60", "pig"}});
 }
 
+// The perturbations that reach farther (results/any_layout_wide/): the
+// README quotes each new variant on each take, and the per-layout HDM05
+// model over its 2 seeds, bold.
+TEST(ResultsTest, ReadmeQuotesTheWiderPerturbationRunAsItsReportSaysIt) {
+  std::vector<std::pair<std::string, std::string>> cells = {
+      {"hdm05_layout_60", "hdm05"}};
+  for (const std::string variant : {"any_layout_perturbed6_fourier_60",
+                                    "any_layout_perturbed8r_fourier_60",
+                                    "any_layout_perturbed700_fourier_60"}) {
+    for (const std::string test : {"hdm05", "cmu", "pig"}) {
+      cells.emplace_back(variant, test);
+    }
+  }
+  ExpectReadmeQuotesBoldAccuracies("results/any_layout_wide/any_layout.csv",
+                                   cells);
+}
+
 // Issue #25 item 3: the README's any-layout paragraph quotes the report
 // (conditioned and per-layout models, bold) and the fine-tuning table (the
 // mean over its seeds per target and epoch count, in epoch order).
