@@ -255,23 +255,26 @@ MarkerLayout MakePerturbedLayout(
     const auto is_taken = [&](int v) {
       return std::find(taken.begin(), taken.end(), v) != taken.end();
     };
-    std::vector<int> candidates = NRing(neighbours, vertex, rings);
-    candidates.push_back(vertex);
+    std::vector<int> candidates;
     if (draw == PerturbDraw::kRing) {
-      // The vertices at exactly r rings: the r-ring less the (r-1)-ring.
+      // The free vertices at exactly r rings: the r-ring less the
+      // (r-1)-ring.
       const int r = static_cast<int>(rng->UniformInt(0, rings));
-      std::vector<int> at_r = {vertex};
+      candidates = {vertex};
       if (r > 0) {
-        at_r = NRing(neighbours, vertex, r);
+        candidates = NRing(neighbours, vertex, r);
         const std::vector<int> inner = NRing(neighbours, vertex, r - 1);
-        std::erase_if(at_r, [&](int v) {
+        std::erase_if(candidates, [&](int v) {
           return std::binary_search(inner.begin(), inner.end(), v);
         });
       }
-      std::erase_if(at_r, is_taken);
-      if (!at_r.empty()) candidates = std::move(at_r);
+      std::erase_if(candidates, is_taken);
     }
-    std::erase_if(candidates, is_taken);
+    if (candidates.empty()) {  // the vertex draw, or the ring draw's fallback
+      candidates = NRing(neighbours, vertex, rings);
+      candidates.push_back(vertex);
+      std::erase_if(candidates, is_taken);
+    }
     if (candidates.empty()) continue;  // its whole ring is taken: dropped
     const int moved = candidates[static_cast<size_t>(
         rng->UniformInt(0, static_cast<int64_t>(candidates.size()) - 1))];

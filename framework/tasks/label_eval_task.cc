@@ -261,10 +261,9 @@ class LabelEvalTask : public Task {
     }
     const LabeledSequence clean = ReadLabeledC3d(input, canonical);
     {
-      std::set<std::string> present;
-      for (const std::string& c : clean.column_names) {
-        present.insert(CanonicalMarkerLabel(c));
-      }
+      // The take's columns carry the canonical names they were read under.
+      const std::set<std::string> present(clean.column_names.begin(),
+                                          clean.column_names.end());
       std::vector<std::string> lacking;
       for (size_t i = 0; i < canonical.size(); ++i) {
         if (present.count(canonical[i]) == 0) {
