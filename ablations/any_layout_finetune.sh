@@ -8,7 +8,15 @@
 # reproduction does (the same corrupted take, `soma label` with the layout,
 # `soma eval`).
 #
+#   [BASE=<model dir>] [OUT=<table.csv>] \
 #   bash ablations/any_layout_finetune.sh [soma binary] [epochs="1 2 4"] [seeds="0 1 2"]
+#
+# BASE: another conditioned variant to start from, its directory under
+# results/reproduce/models/ (e.g. any_layout_perturbed8r_fourier_60's); its
+# seeds' model.* overrides (.hydra/overrides.yaml) are passed on, since the
+# network must match the checkpoint. Its runs go under
+# results/reproduce/finetune/<BASE's name>/, and OUT defaults to
+# results/any_layout_finetune_<BASE's name>.csv.
 #
 # Needs the finished any_layout reproduction (its models and test data under
 # results/reproduce/) and the fitted layouts (ablations/make_layouts.sh).
@@ -22,25 +30,35 @@ SOMA=${1:-./build/soma}
 EPOCHS=${2:-1 2 4}
 SEEDS=${3:-0 1 2}
 BUDGET=(scale=cpu)
-RUNS=results/reproduce/finetune
-OUT=results/any_layout_finetune.csv
-
-# The variant any_layout's directory: the other mixed variants
-# (any_layout_perturbed*) share its name's prefix and set perturbed_layouts.
-models=()
-for dir in results/reproduce/models/model-soma_any_layout_synth-layout_sampler-mixed-*; do
-  overrides=$(cat "$dir"/seed*/.hydra/overrides.yaml 2>/dev/null || true)
-  if [[ -d $dir && $overrides != *perturbed_layouts* ]]; then
-    models+=("$dir")
+if [[ -n ${BASE:-} ]]; then
+  base=${BASE%/}
+  if [[ ! -d $base ]]; then
+    echo "any_layout_finetune: BASE=$base is not a directory" \
+      "(expected a model directory under results/reproduce/models/)" >&2
+    exit 1
   fi
-done
-if [[ ${#models[@]} -ne 1 ]]; then
-  echo "any_layout_finetune: expected one any_layout model directory" \
-    "(results/reproduce/models/model-soma_any_layout_synth-layout_sampler-mixed-*)," \
-    "found ${#models[@]}: run soma reproduce any_layout first" >&2
-  exit 1
+  RUNS=results/reproduce/finetune/$(basename "$base")
+  OUT=${OUT:-results/any_layout_finetune_$(basename "$base").csv}
+else
+  RUNS=results/reproduce/finetune
+  OUT=${OUT:-results/any_layout_finetune.csv}
+  # The variant any_layout's directory: the other mixed variants
+  # (any_layout_perturbed*) share its name's prefix and set perturbed_layouts.
+  models=()
+  for dir in results/reproduce/models/model-soma_any_layout_synth-layout_sampler-mixed-*; do
+    overrides=$(cat "$dir"/seed*/.hydra/overrides.yaml 2>/dev/null || true)
+    if [[ -d $dir && $overrides != *perturbed_layouts* ]]; then
+      models+=("$dir")
+    fi
+  done
+  if [[ ${#models[@]} -ne 1 ]]; then
+    echo "any_layout_finetune: expected one any_layout model directory" \
+      "(results/reproduce/models/model-soma_any_layout_synth-layout_sampler-mixed-*)," \
+      "found ${#models[@]}: run soma reproduce any_layout first" >&2
+    exit 1
+  fi
+  base=${models[0]}
 fi
-base=${models[0]}
 
 # target: name, take stem, layout file
 targets=("hdm05 HDM_mm_01-02_03_120 results/layouts/hdm05.json"
@@ -68,15 +86,17 @@ for target in "${targets[@]}"; do
   for seed in $SEEDS; do
     init="$base/seed$seed/checkpoints/best.pt"
     if [[ ! -f $init ]]; then
-      echo "any_layout_finetune: $init is missing (the any_layout run is not finished)" >&2
+      echo "any_layout_finetune: $init is missing (the run is not finished)" >&2
       exit 1
     fi
+    # The base's network: its model.* overrides (e.g. fourier_bands).
+    mapfile -t model_args < <(sed -n 's/^- \(model\..*\)$/\1/p' "$base/seed$seed/.hydra/overrides.yaml")
     for epochs in $EPOCHS; do
       run="$RUNS/$name/seed$seed/epochs$epochs"
       if [[ ! -f $run/eval/metrics.yaml ]]; then
         echo "fine-tune $name seed $seed: $epochs epochs"
         mkdir -p "$run"
-        if ! "$SOMA" train "${BUDGET[@]}" model=soma_any_layout "${layout_args[@]}" \
+        if ! "$SOMA" train "${BUDGET[@]}" model=soma_any_layout "${model_args[@]}" "${layout_args[@]}" \
           "train.init_from=$init" "train.max_epochs=$epochs" "seed=$seed" threads=1 \
           "hydra.run.dir=$run/train" >"$run/train.log" 2>&1; then
           tail -3 "$run/train.log" >&2
