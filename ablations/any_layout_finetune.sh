@@ -8,7 +8,7 @@
 # reproduction does (the same corrupted take, `soma label` with the layout,
 # `soma eval`).
 #
-#   [BASE=<model dir>] [OUT=<table.csv>] \
+#   [BASE=<model dir>] [TRAIN_ARGS="key=value ..." TAG=<name>] [OUT=<table.csv>] \
 #   bash ablations/any_layout_finetune.sh [soma binary] [epochs="1 2 4"] [seeds="0 1 2"]
 #
 # BASE: another conditioned variant to start from, its directory under
@@ -16,7 +16,9 @@
 # seeds' model.* overrides (.hydra/overrides.yaml) are passed on, since the
 # network must match the checkpoint. Its runs go under
 # results/reproduce/finetune/<BASE's name>/, and OUT defaults to
-# results/any_layout_finetune_<BASE's name>.csv.
+# results/any_layout_finetune_<BASE's name>.csv. TRAIN_ARGS: more overrides
+# of the fine-tuning runs (e.g. optimizer.lr=1e-4); they need a TAG, which
+# names their runs and table (<BASE's name>_<TAG>).
 #
 # Needs the finished any_layout reproduction (its models and test data under
 # results/reproduce/) and the fitted layouts (ablations/make_layouts.sh).
@@ -30,6 +32,11 @@ SOMA=${1:-./build/soma}
 EPOCHS=${2:-1 2 4}
 SEEDS=${3:-0 1 2}
 BUDGET=(scale=cpu)
+read -r -a train_args <<<"${TRAIN_ARGS:-}"
+if [[ ${#train_args[@]} -gt 0 && -z ${TAG:-} ]]; then
+  echo "any_layout_finetune: TRAIN_ARGS needs a TAG naming its runs and table" >&2
+  exit 1
+fi
 if [[ -n ${BASE:-} ]]; then
   base=${BASE%/}
   if [[ ! -d $base ]]; then
@@ -37,8 +44,12 @@ if [[ -n ${BASE:-} ]]; then
       "(expected a model directory under results/reproduce/models/)" >&2
     exit 1
   fi
-  RUNS=results/reproduce/finetune/$(basename "$base")
-  OUT=${OUT:-results/any_layout_finetune_$(basename "$base").csv}
+  runs_name=$(basename "$base")${TAG:+_$TAG}
+  RUNS=results/reproduce/finetune/$runs_name
+  OUT=${OUT:-results/any_layout_finetune_$runs_name.csv}
+elif [[ -n ${TAG:-} ]]; then
+  echo "any_layout_finetune: TAG needs a BASE" >&2
+  exit 1
 else
   RUNS=results/reproduce/finetune
   OUT=${OUT:-results/any_layout_finetune.csv}
@@ -97,7 +108,7 @@ for target in "${targets[@]}"; do
         echo "fine-tune $name seed $seed: $epochs epochs"
         mkdir -p "$run"
         if ! "$SOMA" train "${BUDGET[@]}" model=soma_any_layout "${model_args[@]}" "${layout_args[@]}" \
-          "train.init_from=$init" "train.max_epochs=$epochs" "seed=$seed" threads=1 \
+          "train.init_from=$init" "train.max_epochs=$epochs" "${train_args[@]}" "seed=$seed" threads=1 \
           "hydra.run.dir=$run/train" >"$run/train.log" 2>&1; then
           tail -3 "$run/train.log" >&2
           echo "any_layout_finetune: training failed, log: $run/train.log" >&2

@@ -393,6 +393,28 @@ TEST(ResultsTest, ReadmeQuotesTheWiderPerturbationRunAsItsReportSaysIt) {
                                    cells);
 }
 
+/// A fine-tuning table (ablations/any_layout_finetune.sh): per target, the
+/// mean accuracy in % over its seeds at each epoch count, in epoch order, as
+/// Number regexes with 2 decimals.
+std::map<std::string, std::vector<std::string>> FinetuneMeans(
+    const std::string& csv) {
+  std::map<std::string, std::map<int, std::vector<double>>> tuned;
+  for (const auto& row : ReadCsv(testing::SourceDir() / csv)) {
+    tuned[row.at("target")][std::stoi(row.at("epochs"))].push_back(
+        100 * std::stod(row.at("acc_mean")));
+  }
+  std::map<std::string, std::vector<std::string>> means;
+  for (const auto& [target, by_epochs] : tuned) {
+    for (const auto& [epochs, values] : by_epochs) {
+      double sum = 0;
+      for (const double v : values) sum += v;
+      means[target].push_back(
+          Number(sum / static_cast<double>(values.size()), 2));
+    }
+  }
+  return means;
+}
+
 // Issue #25 item 3: the README's any-layout paragraph quotes the report
 // (conditioned and per-layout models, bold) and the fine-tuning table (the
 // mean over its seeds per target and epoch count, in epoch order).
@@ -405,20 +427,9 @@ TEST(ResultsTest, ReadmeQuotesTheAnyLayoutRunAsItsReportsSayIt) {
                                     {"cmu41_layout", "cmu"},
                                     {"pig_layout", "pig"}});
   const std::string readme = Readme();
-  std::map<std::string, std::map<int, std::vector<double>>> tuned;
-  for (const auto& row :
-       ReadCsv(testing::SourceDir() / "results/any_layout_finetune.csv")) {
-    tuned[row.at("target")][std::stoi(row.at("epochs"))].push_back(
-        100 * std::stod(row.at("acc_mean")));
-  }
+  const auto tuned = FinetuneMeans("results/any_layout_finetune.csv");
   ASSERT_EQ(tuned.size(), 2u);
-  for (const auto& [target, by_epochs] : tuned) {
-    std::vector<std::string> means;
-    for (const auto& [epochs, values] : by_epochs) {
-      double sum = 0;
-      for (const double v : values) sum += v;
-      means.push_back(Number(sum / static_cast<double>(values.size()), 2));
-    }
+  for (const auto& [target, means] : tuned) {
     ASSERT_EQ(means.size(), 3u) << target;
     // "87.47% after 1 epoch (13 s of training), 89.50% after 2 and 90.60%"
     // (HDM05); "87.04, 84.31 and 90.18%" (Plug-in Gait).
