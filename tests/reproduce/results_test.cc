@@ -442,6 +442,38 @@ TEST(ResultsTest, ReadmeQuotesTheAnyLayoutRunAsItsReportsSayIt) {
   }
 }
 
+// The learning levers (results/any_layout_learning/): the README quotes
+// each conditioned variant on each take and the per-layout HDM05 models,
+// bold; and the fine-tuning of the ring-draw model at lr 1e-3 and 1e-4 as
+// "a, b and c%" (1, 2 and 4 epochs) per target.
+TEST(ResultsTest, ReadmeQuotesTheLearningRunAsItsReportSaysIt) {
+  std::vector<std::pair<std::string, std::string>> cells = {
+      {"hdm05_layout_60_cosine", "hdm05"}};
+  for (const std::string variant : {"any_layout_perturbed8r_fourier_60_cosine",
+                                    "any_layout_perturbed8r_fourier8_60",
+                                    "any_layout_perturbed8r_fourier_deep_60"}) {
+    for (const std::string test : {"hdm05", "cmu", "pig"}) {
+      cells.emplace_back(variant, test);
+    }
+  }
+  ExpectReadmeQuotesBoldAccuracies(
+      "results/any_layout_learning/any_layout.csv", cells);
+  const std::string readme = Readme();
+  for (const std::string csv :
+       {"results/any_layout_learning/finetune_lr1e-3.csv",
+        "results/any_layout_learning/finetune_lr1e-4.csv"}) {
+    const auto tuned = FinetuneMeans(csv);
+    ASSERT_EQ(tuned.size(), 2u) << csv;
+    for (const auto& [target, means] : tuned) {
+      ASSERT_EQ(means.size(), 3u) << csv << ": " << target;
+      EXPECT_THAT(readme,
+                  MatchesSomewhere(means[0] + ",\\s+" + means[1] +
+                                   "\\s+and\\s+" + means[2] + "%"))
+          << csv << ": " << target;
+    }
+  }
+}
+
 TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
   const std::string readme = ResultsReadme();
   for (const std::string dir :
