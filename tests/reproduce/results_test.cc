@@ -456,8 +456,8 @@ TEST(ResultsTest, ReadmeQuotesTheLearningRunAsItsReportSaysIt) {
       cells.emplace_back(variant, test);
     }
   }
-  ExpectReadmeQuotesBoldAccuracies(
-      "results/any_layout_learning/any_layout.csv", cells);
+  ExpectReadmeQuotesBoldAccuracies("results/any_layout_learning/any_layout.csv",
+                                   cells);
   const std::string readme = Readme();
   for (const std::string csv :
        {"results/any_layout_learning/finetune_lr1e-3.csv",
