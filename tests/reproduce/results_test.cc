@@ -448,7 +448,9 @@ TEST(ResultsTest, ReadmeQuotesTheAnyLayoutRunAsItsReportsSayIt) {
 // "a, b and c%" (1, 2 and 4 epochs) per target.
 TEST(ResultsTest, ReadmeQuotesTheLearningRunAsItsReportSaysIt) {
   std::vector<std::pair<std::string, std::string>> cells = {
-      {"hdm05_layout_60_cosine", "hdm05"}};
+      {"hdm05_layout_60_cosine", "hdm05"},
+      {"cmu41_layout_60", "cmu"},
+      {"pig_layout_60", "pig"}};
   for (const std::string variant : {"any_layout_perturbed8r_fourier_60_cosine",
                                     "any_layout_perturbed8r_fourier8_60",
                                     "any_layout_perturbed8r_fourier_deep_60"}) {
