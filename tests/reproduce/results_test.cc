@@ -346,21 +346,29 @@ void ExpectReadmeQuotesBoldAccuracies(
   }
 }
 
-// The perturbed-layout variants (results/any_layout_perturbed/), with and
-// without Fourier features and at 60 epochs: the README quotes each on each
-// take, bold.
-TEST(ResultsTest, ReadmeQuotesThePerturbedLayoutRunAsItsReportSaysIt) {
+/// The (variant, test) cells of every variant on each of the any_layout
+/// spec's three takes.
+std::vector<std::pair<std::string, std::string>> OnEveryAnyLayoutTake(
+    const std::vector<std::string>& variants) {
   std::vector<std::pair<std::string, std::string>> cells;
-  for (const std::string variant : {"any_layout_perturbed_only",
-                                    "any_layout_perturbed",
-                                    "any_layout_perturbed_fourier",
-                                    "any_layout_perturbed_fourier_60"}) {
+  for (const std::string& variant : variants) {
     for (const std::string test : {"hdm05", "cmu", "pig"}) {
       cells.emplace_back(variant, test);
     }
   }
+  return cells;
+}
+
+// The perturbed-layout variants (results/any_layout_perturbed/), with and
+// without Fourier features and at 60 epochs: the README quotes each on each
+// take, bold.
+TEST(ResultsTest, ReadmeQuotesThePerturbedLayoutRunAsItsReportSaysIt) {
   ExpectReadmeQuotesBoldAccuracies(
-      "results/any_layout_perturbed/any_layout.csv", cells);
+      "results/any_layout_perturbed/any_layout.csv",
+      OnEveryAnyLayoutTake({"any_layout_perturbed_only",
+                            "any_layout_perturbed",
+                            "any_layout_perturbed_fourier",
+                            "any_layout_perturbed_fourier_60"}));
 }
 
 // The conditioned model and the per-layout models at the same 60 epochs
@@ -380,15 +388,10 @@ TEST(ResultsTest, ReadmeQuotesTheEqualEpochsRunAsItsReportSaysIt) {
 // README quotes each new variant on each take, and the per-layout HDM05
 // model over its 2 seeds, bold.
 TEST(ResultsTest, ReadmeQuotesTheWiderPerturbationRunAsItsReportSaysIt) {
-  std::vector<std::pair<std::string, std::string>> cells = {
-      {"hdm05_layout_60", "hdm05"}};
-  for (const std::string variant : {"any_layout_perturbed6_fourier_60",
-                                    "any_layout_perturbed8r_fourier_60",
-                                    "any_layout_perturbed700_fourier_60"}) {
-    for (const std::string test : {"hdm05", "cmu", "pig"}) {
-      cells.emplace_back(variant, test);
-    }
-  }
+  auto cells = OnEveryAnyLayoutTake({"any_layout_perturbed6_fourier_60",
+                                     "any_layout_perturbed8r_fourier_60",
+                                     "any_layout_perturbed700_fourier_60"});
+  cells.emplace_back("hdm05_layout_60", "hdm05");
   ExpectReadmeQuotesBoldAccuracies("results/any_layout_wide/any_layout.csv",
                                    cells);
 }
@@ -447,17 +450,13 @@ TEST(ResultsTest, ReadmeQuotesTheAnyLayoutRunAsItsReportsSayIt) {
 // bold; and the fine-tuning of the ring-draw model at lr 1e-3 and 1e-4 as
 // "a, b and c%" (1, 2 and 4 epochs) per target.
 TEST(ResultsTest, ReadmeQuotesTheLearningRunAsItsReportSaysIt) {
-  std::vector<std::pair<std::string, std::string>> cells = {
-      {"hdm05_layout_60_cosine", "hdm05"},
-      {"cmu41_layout_60", "cmu"},
-      {"pig_layout_60", "pig"}};
-  for (const std::string variant : {"any_layout_perturbed8r_fourier_60_cosine",
-                                    "any_layout_perturbed8r_fourier8_60",
-                                    "any_layout_perturbed8r_fourier_deep_60"}) {
-    for (const std::string test : {"hdm05", "cmu", "pig"}) {
-      cells.emplace_back(variant, test);
-    }
-  }
+  auto cells = OnEveryAnyLayoutTake({"any_layout_perturbed8r_fourier_60_cosine",
+                                     "any_layout_perturbed8r_fourier8_60",
+                                     "any_layout_perturbed8r_fourier_deep_60"});
+  cells.insert(cells.end(),
+               {{"hdm05_layout_60_cosine", "hdm05"},
+                {"cmu41_layout_60", "cmu"},
+                {"pig_layout_60", "pig"}});
   ExpectReadmeQuotesBoldAccuracies("results/any_layout_learning/any_layout.csv",
                                    cells);
   const std::string readme = Readme();
