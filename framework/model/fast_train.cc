@@ -246,8 +246,9 @@ FastTrainer::FastTrainer(LabelerImpl& model,
 
 FastTrainer::~FastTrainer() = default;
 
-double FastTrainer::LabelSideLoss(const int64_t* label_ids,
+double FastTrainer::LabelSideLoss(const at::Tensor& labels,
                                   const LabelSlots* slots) {
+  const int64_t* label_ids = labels.data_ptr<int64_t>();
   const int64_t n = ctx_.points;
   const int64_t rows = ctx_.rows();
   const int64_t num_labels = model_.num_labels();
@@ -289,6 +290,16 @@ double FastTrainer::LabelSideLoss(const int64_t* label_ids,
                                    {ctx_.batch, n, num_labels},
                                    {n * d_scores_.ld, d_scores_.ld, 1},
                                    torch::kFloat));
+  double position = 0.0;
+  if (model_.options().position_loss > 0.0) {
+    for (at::Tensor& p : model_.position_head->parameters()) {
+      p.mutable_grad() = at::Tensor();
+    }
+    const at::Tensor value =
+        model_.PositionLoss(keys.transpose(1, 2), batch_slots, labels);
+    value.backward();  // adds to keys.grad
+    position = value.item<double>();
+  }
   d_keys_.Resize(rows, d);
   fast::CopyColumns(keys.grad().contiguous().data_ptr<float>(),
                     d,
@@ -296,7 +307,7 @@ double FastTrainer::LabelSideLoss(const int64_t* label_ids,
                     d,
                     d_keys_.data(),
                     d_keys_.ld);
-  return loss;
+  return loss + position;
 }
 
 double FastTrainer::Step(const at::Tensor& points,
@@ -359,7 +370,7 @@ double FastTrainer::Step(const at::Tensor& points,
                        head_y.data(),
                        head_y.ld);
   const double loss = model_.conditioned()
-                          ? LabelSideLoss(ids.data_ptr<int64_t>(), slots)
+                          ? LabelSideLoss(ids, slots)
                           : loss_->ForwardBackward(ctx_,
                                                    scores_,
                                                    ids.data_ptr<int64_t>(),

@@ -358,7 +358,10 @@ class FastTrainer {
   /// encoder, label projection, the scaled product, the padded slots'
   /// scores) on torch autograd (LabelerImpl::ConditionedScores), fed the
   /// point keys and handing their gradient back; Sinkhorn and the loss on
-  /// the kernels again. A plain labeller given slots: InternalError.
+  /// the kernels again. Its position loss (LabelerImpl::PositionLoss),
+  /// when weighted, is added to the returned loss and its gradient to the
+  /// point keys', on torch autograd. A plain labeller given slots:
+  /// InternalError.
   double Step(const at::Tensor& points,
               const at::Tensor& label_ids,
               const LabelSlots* slots = nullptr);
@@ -375,8 +378,10 @@ class FastTrainer {
   /// A conditioned labeller's label side (FastTrainer::Step): from the
   /// point keys `keys_` to the scores on torch autograd, Sinkhorn and the
   /// loss on the kernels, then the gradients back to `d_keys_` and the
-  /// label side's parameters. Returns the batch loss.
-  double LabelSideLoss(const int64_t* label_ids, const LabelSlots* slots);
+  /// label side's parameters; with a position loss
+  /// (LabelerImpl::PositionLoss) that too, on torch autograd. `labels`
+  /// `B x N` int64, contiguous. Returns the batch loss.
+  double LabelSideLoss(const at::Tensor& labels, const LabelSlots* slots);
 
   LabelerImpl& model_;
   fast::Context ctx_;

@@ -34,6 +34,13 @@ void LabelerOptions::Validate() const {
       fail("label_encoder.d_model", label_encoder.d_model, "== d_model");
     }
   }
+  if (!(position_loss >= 0.0) || (position_loss > 0.0 && !conditioned)) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. position_loss = {}. Violated constraint: "
+        "position_loss >= 0, and 0 unless the labeller is conditioned "
+        "(model=soma_any_layout)",
+        position_loss));
+  }
 }
 
 at::Tensor MedianOffsets(const at::Tensor& points) {
@@ -88,6 +95,12 @@ LabelerImpl::LabelerImpl(
         register_module("label_encoder", LabelEncoder(options_.label_encoder));
     label_head = register_module(
         "label_head", ConditionedScoreHead(options_.d_model, options_.hidden));
+    if (options_.position_loss > 0.0) {
+      position_head = register_module(
+          "position_head",
+          torch::nn::Conv1d(
+              torch::nn::Conv1dOptions(options_.d_model, 3, 1).bias(true)));
+    }
   } else {
     head = register_module(
         "head",
@@ -165,6 +178,37 @@ torch::Tensor LabelerImpl::ConditionedScores(const torch::Tensor& point_keys,
   return label_head->Scores(point_keys, labels, mask);
 }
 
+torch::Tensor LabelerImpl::PositionLoss(const torch::Tensor& point_keys,
+                                        const LabelSlots& slots,
+                                        const torch::Tensor& labels) {
+  if (options_.position_loss <= 0.0) return {};
+  const int64_t batch = point_keys.size(0);
+  const int64_t n = point_keys.size(2);
+  const int64_t l = options_.num_labels;
+  CheckLabelSlots(slots, l, descriptor_width(), batch);
+  SOMA_CHECK(labels.dim() == 2 && labels.size(0) == batch &&
+             labels.size(1) == n)
+      << "PositionLoss: labels must be B x N, got " << ShapeString(labels);
+  const torch::Tensor ids = labels.to(point_keys.device(), torch::kLong);
+  const torch::Tensor labelled = ids.lt(l).logical_and(ids.ge(0));  // B x N
+  // The rest position of each point's label slot (a null point's row is
+  // gathered from slot 0 and masked out).
+  const torch::Tensor positions = slots.descriptors.narrow(2, 0, 3)
+                                      .to(point_keys.options())
+                                      .expand({batch, l, 3});
+  const torch::Tensor target =
+      positions.gather(1,
+                       ids.masked_fill(labelled.logical_not(), 0)
+                           .unsqueeze(2)
+                           .expand({batch, n, 3}));  // B N 3
+  const torch::Tensor predicted = position_head(point_keys).transpose(1, 2);
+  const torch::Tensor weight = labelled.to(point_keys.scalar_type());
+  const torch::Tensor per_frame =
+      ((predicted - target).square().sum(2) * weight).sum(1) /
+      weight.sum(1).clamp_min(1.0);
+  return options_.position_loss * per_frame.sum();
+}
+
 LabelerOutput LabelerImpl::ForwardSlots(const torch::Tensor& points,
                                         const LabelSlots& slots,
                                         bool return_attention) {
@@ -196,7 +240,8 @@ LabelerOutput LabelerImpl::Run(const torch::Tensor& points,
   features =
       backbone->forward(features, return_attention ? &attention : nullptr);
   if (slots != nullptr) {
-    out.scores = ConditionedScores(label_head->PointKeys(features), *slots);
+    out.point_keys = label_head->PointKeys(features);
+    out.scores = ConditionedScores(out.point_keys, *slots);
   } else {
     out.scores = head(features);
   }
@@ -322,6 +367,10 @@ void RegisterModelSpecs() {
         std::shared_ptr<BackboneSpec> backbone =
             ReadPointBranch(node, reader, ctx, &options);
         const ConfigNode* label_node = reader.Child("label_encoder");
+        reader.Read("position_loss", &options.position_loss);
+        reader.Check("position_loss",
+                     options.position_loss >= 0.0,
+                     "position_loss >= 0");
         reader.Finish();
         LabelEncoderOptions& label = options.label_encoder;
         int num_joints = kNumCoreJoints;

@@ -30,6 +30,7 @@
 #include "framework/model/normalization.h"
 
 #include <torch/nn/module.h>
+#include <torch/nn/modules/conv.h>
 #include <torch/nn/pimpl.h>
 
 #include <cstdint>
@@ -49,7 +50,10 @@ struct LabelerOptions {
   /// then the number of label slots.
   bool conditioned = false;
   LabelEncoderOptions label_encoder;  // conditioned only
-  void Validate() const;              // ConfigError on violation
+  /// Conditioned only: the weight of the auxiliary position loss
+  /// (LabelerImpl::PositionLoss); 0 = none, and no `position_head`.
+  double position_loss = 0.0;
+  void Validate() const;  // ConfigError on violation
 };
 
 /// Per-frame median centring (REFERENCE 1.1): for every frame, the offset is
@@ -120,6 +124,22 @@ class LabelerImpl : public torch::nn::Module {
   /// backbone; the fast training engine calls it on its own point keys.
   torch::Tensor ConditionedScores(const torch::Tensor& point_keys,
                                   const LabelSlots& slots);
+  /// The auxiliary position loss of a conditioned labeller whose
+  /// `position_loss` weight w is positive: the point keys (`B x D x N`, as
+  /// ConditionedScores takes them) regress the rest position of their
+  /// point's label (descriptor columns 0-2, body frame in body heights)
+  /// through `position_head`, a linear map D -> 3:
+  ///   w * sum_f (1 / n_f) sum_{i labelled} || P k_fi + c - p(l_fi) ||^2,
+  /// n_f the frame's labelled points (ids < L of `labels`, `B x N` int64;
+  /// frames without any add nothing), summed over frames as the labelling
+  /// loss is. Dense supervision of where on the body a point is, which a
+  /// per-layout model's classifier gets from its fixed labels and the
+  /// conditioned one must learn as a continuous map. A scalar tensor; an
+  /// undefined one when the weight is 0. Used by both training engines;
+  /// validation and labelling do not compute it.
+  torch::Tensor PositionLoss(const torch::Tensor& point_keys,
+                             const LabelSlots& slots,
+                             const torch::Tensor& labels);
 
   PointEncoder encoder{nullptr};
   Backbone backbone{nullptr};
@@ -127,6 +147,7 @@ class LabelerImpl : public torch::nn::Module {
   Normalization normalization{nullptr};
   LabelEncoder label_encoder{nullptr};       // conditioned only
   ConditionedScoreHead label_head{nullptr};  // conditioned only
+  torch::nn::Conv1d position_head{nullptr};  // position_loss > 0 only
   torch::Tensor layout_descriptors;          // conditioned only, L x Q
 
  private:

@@ -28,6 +28,10 @@ struct LabelerOutput {
   /// Self-attention weights `B x k x h x N x N` (k layers, h heads) when they
   /// were requested and the backbone has attention; undefined otherwise.
   at::Tensor attention;
+  /// A conditioned labeller's point keys `B x D x N`
+  /// (ConditionedScoreHead::PointKeys; what LabelerImpl::PositionLoss
+  /// takes); undefined for a fixed-layout one.
+  at::Tensor point_keys;
 };
 
 }  // namespace soma

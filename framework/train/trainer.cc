@@ -1116,6 +1116,12 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
           const LabelerOutput out = ForwardBatch(model_, t);
           loss =
               loss_->Compute(out.log_assignment, BatchTargets(t, num_labels));
+          if (model_->options().position_loss > 0.0) {
+            loss = loss + model_->PositionLoss(
+                              out.point_keys,
+                              t.has_slots ? t.slots : model_->LayoutSlots(),
+                              t.labels);
+          }
           value = loss.item<double>();
         }
         if (!std::isfinite(value)) {

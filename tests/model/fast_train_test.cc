@@ -987,16 +987,27 @@ std::vector<std::pair<std::string, torch::Tensor>> ConditionedTorchGrads(
   } else {
     out = model.forward(points.to(torch::kDouble));
   }
-  const torch::Tensor value =
-      SomaLabelingLoss().Compute(out.log_assignment, targets);
+  torch::Tensor value = SomaLabelingLoss().Compute(out.log_assignment, targets);
+  if (model.options().position_loss > 0.0) {
+    value = value + model.PositionLoss(
+                        out.point_keys,
+                        slots != nullptr
+                            ? LabelSlots{slots->descriptors.to(torch::kDouble),
+                                         slots->mask}
+                            : model.LayoutSlots(),
+                        labels);
+  }
   value.backward();
   *loss_value = value.item<double>();
   return Grads(model);
 }
 
-void CheckConditionedModel(KernelIsa isa, bool batch_slots, int num_iters) {
+void CheckConditionedModel(KernelIsa isa,
+                           bool batch_slots,
+                           int num_iters,
+                           double position_loss = 0.0) {
   const int64_t b = 3, n = 10, l = 6;
-  Labeler model = testing::SmallConditionedLabeler(l, num_iters);
+  Labeler model = testing::SmallConditionedLabeler(l, num_iters, position_loss);
   Randomize(*model);
   torch::Tensor points, labels;
   LabelSlots slots;
@@ -1012,7 +1023,7 @@ void CheckConditionedModel(KernelIsa isa, bool batch_slots, int num_iters) {
       }
     }
   }
-  Labeler exact = testing::SmallConditionedLabeler(l, num_iters);
+  Labeler exact = testing::SmallConditionedLabeler(l, num_iters, position_loss);
   CopyState(*model, *exact);
   model->train();
   double exact_loss = 0.0;
@@ -1042,6 +1053,10 @@ TEST(FastTrain, ConditionedModelGradientsMatchAutograd) {
     // After a last column update a padded slot's dustbin entry of A' is 0,
     // so its zero loss weight shows only without iterations.
     CheckConditionedModel(isa, /*batch_slots=*/true, 0);
+    // The position loss's gradient joins the point keys' (and trains its
+    // head) in both engines alike.
+    CheckConditionedModel(isa, /*batch_slots=*/true, 35, 0.7);
+    CheckConditionedModel(isa, /*batch_slots=*/false, 35, 0.7);
   }
 }
 

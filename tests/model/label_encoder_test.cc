@@ -455,6 +455,60 @@ TEST(ConditionedLabeler, StoredLayoutIsTheDefaultSlots) {
   EXPECT_EQ(buffers.count("layout_descriptors"), 1u);
 }
 
+TEST(ConditionedLabeler, PositionLossIsTheMeanSquaredErrorOfLabelledPoints) {
+  torch::manual_seed(21);
+  const int64_t b = 2, n = 5, l = 4;
+  const double weight = 2.5;
+  Labeler model = SmallConditionedLabeler(l, 35, weight);
+  ASSERT_TRUE(model->position_head);
+  model->to(torch::kDouble);
+  const torch::Tensor keys = torch::randn({b, 12, n}, torch::kDouble);
+  const LabelSlots slots{torch::randn({b, l, kWidth}, torch::kDouble),
+                         torch::ones({b, l}, torch::kBool)};
+  // Frame 0: points 0, 2 and 4 carry labels 3, 0 and 3 (a label may repeat:
+  // the loss does not check assignments), 1 and 3 are null (id L); frame 1
+  // has no labelled point and adds nothing.
+  const torch::Tensor labels =
+      torch::tensor(std::vector<int64_t>{3, l, 0, l, 3, l, l, l, l, l})
+          .view({b, n});
+  const torch::Tensor value = model->PositionLoss(keys, slots, labels);
+  // By hand: P k + c per point, against the slot's descriptor columns 0-2.
+  const torch::Tensor w = model->position_head->weight.squeeze(2);  // 3 x D
+  const torch::Tensor c = model->position_head->bias;
+  double sum = 0.0;
+  const int64_t points[] = {0, 2, 4};
+  for (int64_t i : points) {
+    const int64_t label = labels[0][i].item<int64_t>();
+    const torch::Tensor predicted = w.matmul(keys[0].select(1, i)) + c;
+    const torch::Tensor target = slots.descriptors[0][label].narrow(0, 0, 3);
+    sum += (predicted - target).square().sum().item<double>();
+  }
+  EXPECT_NEAR(value.item<double>(), weight * sum / 3.0, 1e-12);
+  // The held layout (1 x L x Q, shared by the frames) gives the same value
+  // as the layout repeated per frame.
+  LabelSlots one{slots.descriptors.narrow(0, 0, 1), torch::Tensor()};
+  LabelSlots repeated{one.descriptors.expand({b, l, kWidth}).contiguous(),
+                      torch::Tensor()};
+  EXPECT_NEAR(model->PositionLoss(keys, one, labels).item<double>(),
+              model->PositionLoss(keys, repeated, labels).item<double>(),
+              1e-12);
+  // No weight, no loss and no head.
+  Labeler plain = SmallConditionedLabeler(l);
+  EXPECT_FALSE(plain->position_head);
+  EXPECT_FALSE(
+      plain
+          ->PositionLoss(
+              keys.to(torch::kFloat),
+              LabelSlots{slots.descriptors.to(torch::kFloat), slots.mask},
+              labels)
+          .defined());
+  // Only a conditioned labeller takes a weight.
+  LabelerOptions options;
+  options.num_labels = 4;
+  options.position_loss = 1.0;
+  EXPECT_THROW(options.Validate(), ConfigError);
+}
+
 TEST(ConditionedLabeler, PlainModelRejectsSlots) {
   LabelerOptions options;
   options.num_labels = 41;
@@ -528,6 +582,22 @@ TEST(BuildLabeler, SomaAnyLayoutFromConfig) {
   EXPECT_EQ(CountTrainableParameters(*BuildLabeler(fourier, norm, 6)),
             CountTrainableParameters(*labeler) +
                 24 * model.at("label_encoder").at("hidden").AsInt());
+  // The position loss adds a linear map of the point keys to 3 coordinates,
+  // and only when it is weighted; a negative weight is a one-line error.
+  ConfigNode position = model;
+  position.SetPath("position_loss", ConfigNode(0.5));
+  Labeler positioned = BuildLabeler(position, norm, 6);
+  EXPECT_EQ(positioned->options().position_loss, 0.5);
+  EXPECT_EQ(CountTrainableParameters(*positioned),
+            CountTrainableParameters(*labeler) + 10 * 3 + 3);
+  EXPECT_FALSE(labeler->position_head);
+  bad = model;
+  bad.SetPath("position_loss", ConfigNode(-1.0));
+  const std::string position_message =
+      testing::ErrorMessage<ConfigError>([&] { BuildLabeler(bad, norm, 6); });
+  EXPECT_NE(position_message.find("position_loss"), std::string::npos)
+      << position_message;
+  EXPECT_EQ(position_message.find('\n'), std::string::npos) << position_message;
   // The plain model is unchanged: no label branch, a fixed head.
   ConfigNode soma = LoadConfig("model/soma.yaml");
   Labeler plain = BuildLabeler(soma, norm, 41);
