@@ -473,10 +473,11 @@ struct FastLabeler::Impl {
 
 bool FastLabeler::Supports(const LabelerImpl& model) {
   // A layout-conditioned labeler scores against the embeddings of the layout
-  // it holds (ConditionedClassifier), with Sinkhorn; without a layout the
-  // torch forward gives the error.
+  // it holds (ConditionedClassifier), with Sinkhorn, when its scores are
+  // bilinear (no point-label attention); without a layout the torch forward
+  // gives the error.
   if (model.conditioned()) {
-    if (model.label_head.is_empty() ||
+    if (model.label_head.is_empty() || !model.label_head->Bilinear() ||
         dynamic_cast<const SinkhornImpl*>(model.normalization.get()) ==
             nullptr ||
         !model.HoldsLayout()) {

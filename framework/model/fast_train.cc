@@ -285,6 +285,9 @@ double FastTrainer::LabelSideLoss(const at::Tensor& labels,
   for (at::Tensor& p : model_.label_head->label_proj->parameters()) {
     p.mutable_grad() = at::Tensor();
   }
+  for (PointLabelAttention& layer : model_.label_head->cross) {
+    for (at::Tensor& p : layer->parameters()) p.mutable_grad() = at::Tensor();
+  }
   model_.label_head->log_scale.mutable_grad() = at::Tensor();
   scores.backward(torch::from_blob(d_scores_.data(),
                                    {ctx_.batch, n, num_labels},

@@ -388,8 +388,53 @@ torch::Tensor LabelEncoderImpl::EncodeSlots(const torch::Tensor& descriptors,
       .contiguous();  // B x D x L
 }
 
+PointLabelAttentionImpl::PointLabelAttentionImpl(int64_t d_model,
+                                                 int64_t num_heads)
+    : d_model_(d_model), num_heads_(num_heads) {
+  SOMA_CHECK(num_heads > 0 && d_model % num_heads == 0)
+      << "PointLabelAttention: d_model " << d_model << " is not a multiple of "
+      << num_heads << " heads";
+  auto conv = [&](const char* name) {
+    return register_module(
+        name, torch::nn::Conv1d(torch::nn::Conv1dOptions(d_model, d_model, 1)));
+  };
+  query = conv("query");
+  key = conv("key");
+  value = conv("value");
+  merge = conv("merge");
+  torch::NoGradGuard no_grad;
+  merge->weight.zero_();
+  merge->bias.zero_();
+}
+
+torch::Tensor PointLabelAttentionImpl::forward(const torch::Tensor& point_keys,
+                                               const torch::Tensor& labels,
+                                               const torch::Tensor& mask) {
+  const int64_t b = point_keys.size(0);
+  const int64_t n = point_keys.size(2);
+  const int64_t bl = labels.size(0);
+  const int64_t l = labels.size(2);
+  const int64_t h = num_heads_;
+  const int64_t dh = d_model_ / h;
+  const torch::Tensor q = query(point_keys).view({b, h, dh, n});
+  const torch::Tensor k = key(labels).view({bl, h, dh, l});
+  const torch::Tensor v = value(labels).view({bl, h, dh, l});
+  // B x h x N x L (a shared layout's 1 x ... broadcasts over the frames).
+  const torch::Tensor logits =
+      torch::matmul(q.transpose(2, 3), k) / std::sqrt(static_cast<double>(dh));
+  const torch::Tensor weights = torch::softmax(
+      logits.masked_fill(mask.logical_not().view({mask.size(0), 1, 1, l}),
+                         kPaddedSlotScore),
+      -1);
+  const torch::Tensor mixed =
+      torch::matmul(v, weights.transpose(2, 3)).reshape({b, d_model_, n});
+  return point_keys + merge(mixed);
+}
+
 ConditionedScoreHeadImpl::ConditionedScoreHeadImpl(int64_t d_model,
-                                                   int64_t hidden)
+                                                   int64_t hidden,
+                                                   int64_t cross_layers,
+                                                   int64_t num_heads)
     : d_model_(d_model) {
   block =
       register_module("block", ResConv1DBlock(d_model, 2 * d_model, hidden));
@@ -400,6 +445,10 @@ ConditionedScoreHeadImpl::ConditionedScoreHeadImpl(int64_t d_model,
       "label_proj",
       torch::nn::Conv1d(torch::nn::Conv1dOptions(d_model, d_model, 1)));
   log_scale = register_parameter("log_scale", torch::zeros({}));
+  for (int64_t i = 0; i < cross_layers; ++i) {
+    cross.push_back(register_module(fmt::format("cross{}", i),
+                                    PointLabelAttention(d_model, num_heads)));
+  }
 }
 
 torch::Tensor ConditionedScoreHeadImpl::forward(const torch::Tensor& features,
@@ -416,9 +465,13 @@ torch::Tensor ConditionedScoreHeadImpl::PointKeys(
 torch::Tensor ConditionedScoreHeadImpl::Scores(const torch::Tensor& point_keys,
                                                const torch::Tensor& labels,
                                                const torch::Tensor& mask) {
+  torch::Tensor points = point_keys;
+  for (PointLabelAttention& layer : cross) {
+    points = layer(points, labels, mask);
+  }
   const torch::Tensor keys = label_proj(labels);  // B' D L
   const torch::Tensor scores =
-      torch::matmul(point_keys.transpose(1, 2), keys) *
+      torch::matmul(points.transpose(1, 2), keys) *
       (log_scale.exp() / std::sqrt(static_cast<double>(d_model_)));  // B N L
   return scores.masked_fill(mask.logical_not().unsqueeze(1), kPaddedSlotScore);
 }

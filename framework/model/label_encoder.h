@@ -165,12 +165,43 @@ class LabelEncoderImpl : public torch::nn::Module {
 };
 TORCH_MODULE(LabelEncoder);
 
+/// One layer in which the point keys attend to the label embeddings of
+/// their frame's layout (LabelerOptions::cross_layers): per head, softmax
+/// over the frame's present labels of (W_q k_i)^T (W_k e_l) / sqrt(D / h),
+/// the values W_v e_l averaged by it, merged by W_o and added to k_i. W_o
+/// starts at zero, so that an untrained layer leaves the keys as they are.
+/// Children: `query`, `key`, `value`, `merge` (1x1 convolutions D -> D).
+class PointLabelAttentionImpl : public torch::nn::Module {
+ public:
+  PointLabelAttentionImpl(int64_t d_model, int64_t num_heads);
+  /// `point_keys` `B x D x N`, `labels` `B x D x L` or `1 x D x L`, `mask`
+  /// `B x L` or `1 x L` bool (true = present; at least one per frame) ->
+  /// the updated keys `B x D x N`.
+  torch::Tensor forward(const torch::Tensor& point_keys,
+                        const torch::Tensor& labels,
+                        const torch::Tensor& mask);
+
+  torch::nn::Conv1d query{nullptr};
+  torch::nn::Conv1d key{nullptr};
+  torch::nn::Conv1d value{nullptr};
+  torch::nn::Conv1d merge{nullptr};
+
+ private:
+  int64_t d_model_;
+  int64_t num_heads_;
+};
+TORCH_MODULE(PointLabelAttention);
+
 /// Point features x label embeddings -> scores. Children: `block`
 /// (ResConv1DBlock D->2D), `point_proj` (2D->D), `label_proj` (D->D),
-/// parameter `log_scale` (0-dim, initialised to 0).
+/// `cross{i}` (PointLabelAttention, `cross_layers` of them), parameter
+/// `log_scale` (0-dim, initialised to 0).
 class ConditionedScoreHeadImpl : public torch::nn::Module {
  public:
-  ConditionedScoreHeadImpl(int64_t d_model, int64_t hidden);
+  ConditionedScoreHeadImpl(int64_t d_model,
+                           int64_t hidden,
+                           int64_t cross_layers = 0,
+                           int64_t num_heads = 1);
   /// `features` `B x D x N`, `labels` `B x D x L` or `1 x D x L`, `mask`
   /// `B x L` or `1 x L` bool -> scores `B x N x L`:
   /// Scores(PointKeys(features), labels, mask).
@@ -181,14 +212,19 @@ class ConditionedScoreHeadImpl : public torch::nn::Module {
   /// training engine computes with its own kernels).
   torch::Tensor PointKeys(const torch::Tensor& features);
   /// The label side and the scaled product: `point_keys` `B x D x N` (from
-  /// PointKeys), `labels` and `mask` as forward() -> scores `B x N x L`.
+  /// PointKeys) pass the `cross` layers, then meet the projected labels;
+  /// `labels` and `mask` as forward() -> scores `B x N x L`.
   torch::Tensor Scores(const torch::Tensor& point_keys,
                        const torch::Tensor& labels,
                        const torch::Tensor& mask);
+  /// True when the scores are the point keys times fixed label keys (no
+  /// `cross` layers), which FastLabeler folds into one classifier.
+  bool Bilinear() const { return cross.empty(); }
 
   ResConv1DBlock block{nullptr};
   torch::nn::Conv1d point_proj{nullptr};
   torch::nn::Conv1d label_proj{nullptr};
+  std::vector<PointLabelAttention> cross;
   torch::Tensor log_scale;
 
  private:

@@ -34,6 +34,12 @@ void LabelerOptions::Validate() const {
       fail("label_encoder.d_model", label_encoder.d_model, "== d_model");
     }
   }
+  if (cross_layers < 0 || (cross_layers > 0 && !conditioned)) {
+    fail("cross_layers",
+         cross_layers,
+         "cross_layers >= 0, and 0 unless the labeller is conditioned "
+         "(model=soma_any_layout)");
+  }
   if (!(position_loss >= 0.0) || (position_loss > 0.0 && !conditioned)) {
     throw ConfigError(fmt::format(
         "Invalid configuration. position_loss = {}. Violated constraint: "
@@ -93,8 +99,12 @@ LabelerImpl::LabelerImpl(
         << "a conditioned labeler needs a normalization with a dustbin row";
     label_encoder =
         register_module("label_encoder", LabelEncoder(options_.label_encoder));
-    label_head = register_module(
-        "label_head", ConditionedScoreHead(options_.d_model, options_.hidden));
+    label_head =
+        register_module("label_head",
+                        ConditionedScoreHead(options_.d_model,
+                                             options_.hidden,
+                                             options_.cross_layers,
+                                             options_.label_encoder.num_heads));
     if (options_.position_loss > 0.0) {
       position_head = register_module(
           "position_head",
@@ -367,6 +377,9 @@ void RegisterModelSpecs() {
         std::shared_ptr<BackboneSpec> backbone =
             ReadPointBranch(node, reader, ctx, &options);
         const ConfigNode* label_node = reader.Child("label_encoder");
+        reader.Read("cross_layers", &options.cross_layers);
+        reader.Check(
+            "cross_layers", options.cross_layers >= 0, "cross_layers >= 0");
         reader.Read("position_loss", &options.position_loss);
         reader.Check("position_loss",
                      options.position_loss >= 0.0,

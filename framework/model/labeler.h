@@ -53,6 +53,9 @@ struct LabelerOptions {
   /// Conditioned only: the weight of the auxiliary position loss
   /// (LabelerImpl::PositionLoss); 0 = none, and no `position_head`.
   double position_loss = 0.0;
+  /// Conditioned only: layers in which the point keys attend to the label
+  /// embeddings before the scores (PointLabelAttention); 0 = none.
+  int64_t cross_layers = 0;
   void Validate() const;  // ConfigError on violation
 };
 

@@ -1,7 +1,8 @@
 // A small layout-conditioned labeller (model=soma_any_layout) for the model
 // tests: d_model 12, 2 self-attention layers of 3 heads, a label encoder of 2
 // layers, descriptors of a 24-joint body, Sinkhorn with `num_iters`, and the
-// position loss weighted by `position_loss`.
+// position loss weighted by `position_loss`, `cross_layers` point-label
+// attention layers.
 #pragma once
 
 #include "framework/model/label_encoder.h"
@@ -18,9 +19,11 @@ inline constexpr int64_t kConditionedDescriptorWidth = 3 + 3 + 1 + 24 + 4;
 
 inline Labeler SmallConditionedLabeler(int64_t num_labels,
                                        int num_iters = 35,
-                                       double position_loss = 0.0) {
+                                       double position_loss = 0.0,
+                                       int64_t cross_layers = 0) {
   LabelerOptions options;
   options.position_loss = position_loss;
+  options.cross_layers = cross_layers;
   options.num_labels = num_labels;
   options.d_model = 12;
   options.hidden = 16;

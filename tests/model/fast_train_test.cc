@@ -1005,9 +1005,11 @@ std::vector<std::pair<std::string, torch::Tensor>> ConditionedTorchGrads(
 void CheckConditionedModel(KernelIsa isa,
                            bool batch_slots,
                            int num_iters,
-                           double position_loss = 0.0) {
+                           double position_loss = 0.0,
+                           int64_t cross_layers = 0) {
   const int64_t b = 3, n = 10, l = 6;
-  Labeler model = testing::SmallConditionedLabeler(l, num_iters, position_loss);
+  Labeler model = testing::SmallConditionedLabeler(
+      l, num_iters, position_loss, cross_layers);
   Randomize(*model);
   torch::Tensor points, labels;
   LabelSlots slots;
@@ -1023,7 +1025,8 @@ void CheckConditionedModel(KernelIsa isa,
       }
     }
   }
-  Labeler exact = testing::SmallConditionedLabeler(l, num_iters, position_loss);
+  Labeler exact = testing::SmallConditionedLabeler(
+      l, num_iters, position_loss, cross_layers);
   CopyState(*model, *exact);
   model->train();
   double exact_loss = 0.0;
@@ -1057,6 +1060,10 @@ TEST(FastTrain, ConditionedModelGradientsMatchAutograd) {
     // head) in both engines alike.
     CheckConditionedModel(isa, /*batch_slots=*/true, 35, 0.7);
     CheckConditionedModel(isa, /*batch_slots=*/false, 35, 0.7);
+    // Point-label attention runs on the label side's autograd; its
+    // gradients reach the point keys (and are overwritten each step).
+    CheckConditionedModel(isa, /*batch_slots=*/true, 35, 0.0, 2);
+    CheckConditionedModel(isa, /*batch_slots=*/false, 35, 0.0, 1);
   }
 }
 

@@ -455,6 +455,63 @@ TEST(ConditionedLabeler, StoredLayoutIsTheDefaultSlots) {
   EXPECT_EQ(buffers.count("layout_descriptors"), 1u);
 }
 
+TEST(ConditionedLabeler, PointLabelAttentionKeepsTheLayoutContract) {
+  torch::manual_seed(22);
+  Labeler model = SmallConditionedLabeler(7, 35, 0.0, /*cross_layers=*/2);
+  ASSERT_EQ(model->label_head->cross.size(), 2u);
+  torch::NoGradGuard no_grad;
+  model->eval();
+  const torch::Tensor points = torch::randn({3, 10, 3});
+  const torch::Tensor q = RandomDescriptors(3, 7);
+  torch::Tensor mask = torch::ones({3, 7}, torch::kBool);
+  mask.index_put_({0, torch::indexing::Slice(4, 7)}, false);
+  mask.index_put_({2, 1}, false);
+  // Untrained, the layers add nothing (their merge starts at zero): the
+  // scores are the bilinear ones.
+  const LabelerOutput init = model->ForwardSlots(points, LabelSlots{q, mask});
+  {
+    const torch::Tensor labels =
+        model->label_encoder->EncodeSlots(q, mask);  // B x D x L
+    const torch::Tensor bilinear =
+        torch::matmul(init.point_keys.transpose(1, 2),
+                      model->label_head->label_proj(labels)) *
+        (model->label_head->log_scale.exp() / std::sqrt(12.0));
+    EXPECT_TRUE(torch::allclose(
+        init.scores,
+        bilinear.masked_fill(mask.logical_not().unsqueeze(1), kPaddedSlotScore),
+        kTol,
+        kTol));
+  }
+  for (PointLabelAttention& layer : model->label_head->cross) {
+    layer->merge->weight.normal_(0.0, 0.3);
+    layer->merge->bias.normal_(0.0, 0.1);
+  }
+  const LabelerOutput a = model->ForwardSlots(points, LabelSlots{q, mask});
+  EXPECT_GT((a.scores - init.scores).abs().max().item<double>(), 1e-3);
+  // Permuting the layout permutes the columns (the attention pools over
+  // the labels, whatever their order).
+  const torch::Tensor perm = torch::randperm(7);
+  const LabelerOutput b = model->ForwardSlots(
+      points, LabelSlots{q.index_select(1, perm), mask.index_select(1, perm)});
+  EXPECT_TRUE(
+      torch::allclose(b.scores, a.scores.index_select(2, perm), kTol, kTol));
+  // What a padded slot holds does not reach the points.
+  torch::Tensor garbage = q.clone();
+  garbage.index_put_({0, torch::indexing::Slice(4, 7)},
+                     100 * torch::randn({3, kWidth}));
+  garbage.index_put_({2, 1}, -50 * torch::ones({kWidth}));
+  const LabelerOutput c =
+      model->ForwardSlots(points, LabelSlots{garbage, mask});
+  EXPECT_TRUE(torch::allclose(a.log_assignment, c.log_assignment, kTol, kTol));
+  // The held layout (1 x L x Q) gives each frame what the repeated layout
+  // gives it.
+  model->SetLayout(q[1]);
+  const LabelerOutput held = model->forward(points);
+  const LabelerOutput repeated = model->ForwardSlots(
+      points, LabelSlots{q[1].unsqueeze(0).expand({3, 7, kWidth}), {}});
+  EXPECT_TRUE(torch::allclose(held.scores, repeated.scores, kTol, kTol));
+}
+
 TEST(ConditionedLabeler, PositionLossIsTheMeanSquaredErrorOfLabelledPoints) {
   torch::manual_seed(21);
   const int64_t b = 2, n = 5, l = 4;
@@ -598,6 +655,14 @@ TEST(BuildLabeler, SomaAnyLayoutFromConfig) {
   EXPECT_NE(position_message.find("position_loss"), std::string::npos)
       << position_message;
   EXPECT_EQ(position_message.find('\n'), std::string::npos) << position_message;
+  // Point-label attention layers: 4 convolutions D -> D each.
+  ConfigNode cross = model;
+  cross.SetPath("cross_layers", ConfigNode(int64_t{2}));
+  EXPECT_EQ(CountTrainableParameters(*BuildLabeler(cross, norm, 6)),
+            CountTrainableParameters(*labeler) + 2 * 4 * (10 * 10 + 10));
+  bad = model;
+  bad.SetPath("cross_layers", ConfigNode(int64_t{-1}));
+  EXPECT_THROW(BuildLabeler(bad, norm, 6), ConfigError);
   // The plain model is unchanged: no label branch, a fixed head.
   ConfigNode soma = LoadConfig("model/soma.yaml");
   Labeler plain = BuildLabeler(soma, norm, 41);
