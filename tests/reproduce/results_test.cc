@@ -475,6 +475,17 @@ TEST(ResultsTest, ReadmeQuotesTheLearningRunAsItsReportSaysIt) {
   }
 }
 
+// The recipe levers (results/any_layout_recipe/): the README quotes each
+// variant on each take, bold.
+TEST(ResultsTest, ReadmeQuotesTheRecipeRunAsItsReportSaysIt) {
+  ExpectReadmeQuotesBoldAccuracies(
+      "results/any_layout_recipe/any_layout.csv",
+      OnEveryAnyLayoutTake({"any_layout_perturbed8r_fourier_b32_60",
+                            "any_layout_perturbed8r_fourier_share80_60",
+                            "any_layout_perturbed8r_fourier_pos10_60",
+                            "any_layout_perturbed8r_fourier_cross2_60"}));
+}
+
 TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
   const std::string readme = ResultsReadme();
   for (const std::string dir :
