@@ -220,6 +220,12 @@ class LabelTask : public Task {
 
     // Label in chunks so that the progress bar moves on long captures.
     FrameLabeler labeler(model.ptr(), options_.inference);
+    if (options_.inference.use_fast_path && !labeler.uses_fast_path()) {
+      SOMA_LOG(INFO,
+               "label: the model runs on libtorch (the fast inference path "
+               "does not support it: FastLabeler::Supports, e.g. "
+               "point-label attention layers)");
+    }
     const int64_t chunk =
         std::max<int64_t>(options_.inference.batch_size, 1) * 8;
     std::vector<at::Tensor> ids, predicted, confidence;
