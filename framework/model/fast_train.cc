@@ -228,6 +228,19 @@ FastTrainer::FastTrainer(LabelerImpl& model,
                                                 /*relu_out=*/true,
                                                 1.0f);
   if (model.conditioned()) {
+    // The label side, on torch autograd (LabelSideLoss).
+    auto add = [this](const torch::nn::Module& module) {
+      for (const at::Tensor& p : module.parameters()) {
+        autograd_parameters_.push_back(p);
+      }
+    };
+    add(*model.label_encoder);
+    add(*model.label_head->label_proj);
+    for (const PointLabelAttention& layer : model.label_head->cross) {
+      add(*layer);
+    }
+    autograd_parameters_.push_back(model.label_head->log_scale);
+    if (model.position_head) add(*model.position_head);
     // ConditionedScoreHead::PointKeys: point_proj(ReLU(block(ReLU(F)))).
     head_ = std::make_unique<fast::ResBlockOp>(*model.label_head->block,
                                                /*relu_out=*/true,
@@ -279,25 +292,13 @@ double FastTrainer::LabelSideLoss(const at::Tensor& labels,
   const double loss = loss_->ForwardBackward(
       ctx_, scores_, label_ids, num_labels, label_mask, d_scores_);
   // Overwrite the label side's gradients, as the kernels do theirs.
-  for (at::Tensor& p : model_.label_encoder->parameters()) {
-    p.mutable_grad() = at::Tensor();
-  }
-  for (at::Tensor& p : model_.label_head->label_proj->parameters()) {
-    p.mutable_grad() = at::Tensor();
-  }
-  for (PointLabelAttention& layer : model_.label_head->cross) {
-    for (at::Tensor& p : layer->parameters()) p.mutable_grad() = at::Tensor();
-  }
-  model_.label_head->log_scale.mutable_grad() = at::Tensor();
+  for (at::Tensor& p : autograd_parameters_) p.mutable_grad() = at::Tensor();
   scores.backward(torch::from_blob(d_scores_.data(),
                                    {ctx_.batch, n, num_labels},
                                    {n * d_scores_.ld, d_scores_.ld, 1},
                                    torch::kFloat));
   double position = 0.0;
   if (model_.options().position_loss > 0.0) {
-    for (at::Tensor& p : model_.position_head->parameters()) {
-      p.mutable_grad() = at::Tensor();
-    }
     const at::Tensor value =
         model_.PositionLoss(keys.transpose(1, 2), batch_slots, labels);
     value.backward();  // adds to keys.grad

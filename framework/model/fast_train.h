@@ -391,6 +391,10 @@ class FastTrainer {
   // projection (conditioned: the point keys).
   std::unique_ptr<fast::ResBlockOp> head_;
   std::unique_ptr<fast::LinearOp> classifier_;
+  /// A conditioned labeller's parameters trained on torch autograd (label
+  /// encoder, the score head's label side, the position head), collected
+  /// once: LabelSideLoss overwrites their gradients each step.
+  std::vector<at::Tensor> autograd_parameters_;
   std::unique_ptr<fast::NormalizationLossOp> loss_;
   fast::Mat points_, features_, backbone_out_, head_in_, head_out_, scores_;
   fast::Mat d_scores_, d_head_out_, d_head_in_, d_features_;
