@@ -16,6 +16,7 @@
 #include "framework/train/batch_source.h"
 #include "framework/train/metrics.h"
 #include "framework/train/optimizer.h"
+#include "framework/train/weight_average.h"
 
 #include <ATen/CPUGeneratorImpl.h>
 #include <fmt/format.h>
@@ -412,6 +413,9 @@ void TrainerOptions::Validate() const {
   if (!(gradient_clip_val >= 0)) {
     fail("gradient_clip_val", gradient_clip_val, "gradient_clip_val >= 0");
   }
+  if (!(ema_decay >= 0 && ema_decay < 1)) {
+    fail("ema_decay", ema_decay, "0 <= ema_decay < 1 (0 = off)");
+  }
   early_stopping.Validate();
 }
 
@@ -430,6 +434,7 @@ TrainerOptions DecodeTrainerOptions(const ConfigNode& node) {
   reader.Read("engine", &options.engine);
   reader.Read("precision", &options.precision);
   reader.Read("gradient_clip_val", &options.gradient_clip_val);
+  reader.Read("ema_decay", &options.ema_decay);
   if (const ConfigNode* resume = reader.Child("resume");
       resume != nullptr && !resume->IsNull()) {
     if (resume->IsBool()) {
@@ -465,6 +470,9 @@ TrainerOptions DecodeTrainerOptions(const ConfigNode& node) {
   reader.Check("gradient_clip_val",
                options.gradient_clip_val >= 0,
                "gradient_clip_val >= 0");
+  reader.Check("ema_decay",
+               options.ema_decay >= 0 && options.ema_decay < 1,
+               "0 <= ema_decay < 1 (0 = off)");
   reader.Finish();
   return options;
 }
@@ -624,12 +632,16 @@ void CheckCompatible(const CheckpointInfo& info,
 
 namespace {
 
+// Loads the weights stored under `key` ("model": the model to use, the
+// weight average when training averaged; "train_model": the trained weights
+// of such a run).
 void LoadModelArchive(torch::serialize::InputArchive& archive,
                       const std::filesystem::path& path,
-                      LabelerImpl& model) {
+                      LabelerImpl& model,
+                      const std::string& key = "model") {
   torch::serialize::InputArchive model_archive;
-  if (!archive.try_read("model", model_archive)) {
-    throw IoError(fmt::format("{}: checkpoint has no model", path.string()));
+  if (!archive.try_read(key, model_archive)) {
+    throw IoError(fmt::format("{}: checkpoint has no {}", path.string(), key));
   }
   // Module::load would silently resize a parameter of another shape; the
   // identity check normally prevents that, this catches the rest.
@@ -771,6 +783,14 @@ Trainer::Trainer(TrainerOptions options,
              "train: precision=bf16 applies to the fast engine only; the torch "
              "engine trains in fp32");
   }
+  if (options_.ema_decay > 0) {
+    std::vector<torch::Tensor> weights = model_->parameters();
+    for (const torch::Tensor& buffer : model_->buffers()) {
+      weights.push_back(buffer);
+    }
+    average_ =
+        std::make_unique<WeightAverage>(std::move(weights), options_.ema_decay);
+  }
 }
 
 Trainer::~Trainer() = default;
@@ -793,6 +813,26 @@ void Trainer::Resume(const std::filesystem::path& path, State* state) {
   const CheckpointInfo info = ReadInfo(archive, path);
   CheckCompatible(info, identity_, path);
   LoadModelArchive(archive, path, *model_);
+  // A run with a weight average stores it as `model` and the weights it
+  // trains as `train_model`.
+  torch::serialize::InputArchive trained;
+  if (archive.try_read("train_model", trained)) {
+    if (average_ != nullptr) average_->Reset();
+    LoadModelArchive(archive, path, *model_, "train_model");
+    if (average_ == nullptr) {
+      SOMA_LOG(WARNING,
+               "train: {} holds a weight average but train.ema_decay is 0: "
+               "continuing from its trained weights without one",
+               path.string());
+    }
+  } else if (average_ != nullptr) {
+    average_->Reset();
+    SOMA_LOG(WARNING,
+             "train: {} holds no weight average; the average "
+             "(train.ema_decay={}) starts from its weights",
+             path.string(),
+             options_.ema_decay);
+  }
   torch::serialize::InputArchive optimizer_archive;
   if (!archive.try_read("optimizer", optimizer_archive)) {
     throw IoError(
@@ -837,7 +877,14 @@ void Trainer::Resume(const std::filesystem::path& path, State* state) {
 void Trainer::SaveCheckpoints(const State& state, bool is_best) {
   torch::serialize::OutputArchive archive;
   torch::serialize::OutputArchive model_archive;
-  model_->save(model_archive);
+  if (average_ != nullptr) {
+    average_->SaveAverage(*model_, &model_archive);
+    torch::serialize::OutputArchive trained;
+    model_->save(trained);
+    archive.write("train_model", trained);
+  } else {
+    model_->save(model_archive);
+  }
   archive.write("model", model_archive);
   torch::serialize::OutputArchive optimizer_archive;
   optimizer_->save(optimizer_archive);
@@ -900,6 +947,7 @@ EpochMetrics Trainer::Validate(const BatchSource& val, EpochMetrics row) {
   model_->eval();
   {
     torch::NoGradGuard no_grad;
+    const WeightAverage::Swapped averaged(average_.get());
     // The fast engine validates on the optimised inference forward (a
     // snapshot of this epoch's weights; matches the eval-mode torch forward
     // to ~1e-5).
@@ -1027,6 +1075,7 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
     LoadCheckpointWeights(options_.init_from, identity_, *model_);
     SOMA_LOG(INFO, "train: weights initialised from {}", options_.init_from);
   }
+  if (resume_path.empty() && average_ != nullptr) average_->Reset();
   summary.start_epoch = state.epoch;
 
   auto finish = [&](TrainSummary::Termination termination,
@@ -1067,10 +1116,15 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
                       : "");
   }
   SOMA_LOG(INFO,
-           "train: {} engine{}, {} intra-op thread(s)",
+           "train: {} engine{}, {} intra-op thread(s){}",
            engine(),
            kernels,
-           at::get_num_threads());
+           at::get_num_threads(),
+           average_ != nullptr
+               ? fmt::format("; validation and checkpoints use a weight "
+                             "average (ema_decay {})",
+                             options_.ema_decay)
+               : std::string());
 
   Usr1Guard usr1;
   while (state.epoch < options_.max_epochs) {
@@ -1148,6 +1202,7 @@ TrainSummary Trainer::Train(const BatchSource& train, const BatchSource& val) {
           optimizer_->step();
         }
         ++state.step;
+        if (average_ != nullptr) average_->Update(state.step);
         loss_sum += value;
         progress.Update(
             options_.batch_size,

@@ -17,7 +17,9 @@
 // weights as an uninterrupted one: the checkpoint holds everything that
 // carries over between epochs (weights and BatchNorm buffers, Adam moments
 // and step counts, learning rate, scheduler and early-stopping state, best
-// val_loss, the metrics history, torch's generator state).
+// val_loss, the metrics history, torch's generator state; with
+// `ema_decay` the weight average as `model` and the trained weights as
+// `train_model`).
 //
 // metrics.csv columns: epoch (completed epochs, 1-based), step (optimizer
 // steps so far), train_loss (mean over the epoch's batches of the batch loss,
@@ -50,6 +52,7 @@ class BatchSource;
 class FastTrainer;
 class LabelingLoss;
 class OptimizerSpec;
+class WeightAverage;
 
 /// Options of the trainer (the `train` config group, configs/train/).
 struct TrainerOptions {
@@ -87,6 +90,12 @@ struct TrainerOptions {
   /// optimizer step (Lightning's `gradient_clip_val`, algorithm "norm");
   /// 0 = off.
   double gradient_clip_val = 0.0;
+  /// Decay of an exponential moving average of the weights (Polyak
+  /// averaging, weight_average.h), updated after every optimizer step;
+  /// validation, the scheduler, early stopping and both checkpoints' `model`
+  /// use the average, and the checkpoints also hold the trained weights
+  /// (`train_model`) to resume from. 0 = off (SOMA: off).
+  double ema_decay = 0.0;
   uint64_t seed = 0;      // root seed (from the run, not the `train` group)
   void Validate() const;  // ConfigError on violation
 };
@@ -269,7 +278,8 @@ class Trainer {
   ModelIdentity identity_;
   std::filesystem::path run_dir_;
   Callbacks callbacks_;
-  std::unique_ptr<FastTrainer> fast_;  // null: the torch engine
+  std::unique_ptr<FastTrainer> fast_;       // null: the torch engine
+  std::unique_ptr<WeightAverage> average_;  // null: ema_decay = 0
 };
 
 /// Registers the optimizers, schedulers and the `train` config group.

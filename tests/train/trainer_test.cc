@@ -14,6 +14,7 @@
 #include "framework/train/batch_source.h"
 #include "framework/train/optimizer.h"
 #include "framework/train/schedule.h"
+#include "framework/train/weight_average.h"
 
 #include <fmt/format.h>
 #include <gtest/gtest.h>
@@ -726,6 +727,94 @@ TEST_F(TrainerTest, CosineScheduleSetsEveryStepsRateAndResumes) {
   ExpectSameWeights(trainer->model(), resumed->model());
 }
 
+TrainerOptions WithAverage(TrainerOptions options, double decay) {
+  options.ema_decay = decay;
+  return options;
+}
+
+TEST_F(TrainerTest, WeightAverageIsCheckpointedAndLeavesTrainingAsIs) {
+  constexpr double kDecay = 0.8;
+  for (const std::string engine : {"fast", "torch"}) {
+    const auto plain_dir = root_ / (engine + "_plain");
+    const auto dir = root_ / (engine + "_averaged");
+    auto plain = MakeTrainer(WithEngine(Options(3), engine), plain_dir);
+    auto trainer =
+        MakeTrainer(WithAverage(WithEngine(Options(3), engine), kDecay), dir);
+    // The average of the weights after every step, in double, by hand.
+    std::vector<torch::Tensor> expected;
+    Trainer* raw = trainer.get();
+    const auto weights = [&] {
+      std::vector<torch::Tensor> w = raw->model()->parameters();
+      for (const torch::Tensor& b : raw->model()->buffers()) w.push_back(b);
+      return w;
+    };
+    for (const torch::Tensor& w : weights()) {
+      expected.push_back(w.detach().to(torch::kDouble));
+    }
+    trainer->set_callbacks(
+        Trainer::Callbacks{.on_batch_end = [&](const Trainer::BatchEvent& e) {
+          const double d = WeightAverage::DecayAt(kDecay, e.step);
+          const std::vector<torch::Tensor> now = weights();
+          for (size_t i = 0; i < now.size(); ++i) {
+            const torch::Tensor w = now[i].detach().to(torch::kDouble);
+            expected[i] = now[i].is_floating_point()
+                              ? d * expected[i] + (1 - d) * w
+                              : w;  // num_batches_tracked: copied
+          }
+        }});
+    const TrainSummary a = plain->Train(*train_, *val_);
+    const TrainSummary b = trainer->Train(*train_, *val_);
+    ASSERT_EQ(b.history.size(), 3u) << engine;
+    // Averaging does not touch the trained weights (no lr change in 3
+    // epochs), but validation sees the average.
+    ExpectSameWeights(plain->model(), trainer->model());
+    EXPECT_NE(a.history.back().val_loss, b.history.back().val_loss) << engine;
+    // Both checkpoints' model is the average (num_batches_tracked, an
+    // integer, is the live count).
+    Labeler loaded = LoadLabelerFromCheckpoint(dir / "checkpoints/last.pt");
+    std::vector<torch::Tensor> got = loaded->parameters();
+    for (const torch::Tensor& t : loaded->buffers()) got.push_back(t);
+    ASSERT_EQ(got.size(), expected.size());
+    for (size_t i = 0; i < got.size(); ++i) {
+      EXPECT_TRUE(
+          torch::allclose(got[i].to(torch::kDouble), expected[i], 1e-5, 1e-6))
+          << engine << ", weight " << i;
+    }
+    EXPECT_FALSE(torch::equal(loaded->parameters()[0],
+                              trainer->model()->parameters()[0]));
+  }
+}
+
+TEST_F(TrainerTest, ResumeWithWeightAverageEndsLikeAnUninterruptedRun) {
+  const TrainerOptions options = WithAverage(Options(3), 0.8);
+  TrainerOptions one = options;
+  one.max_epochs = 1;
+  const auto full = root_ / "full";
+  auto reference = MakeTrainer(options, full);
+  reference->Train(*train_, *val_);
+  const auto split = root_ / "split";
+  MakeTrainer(one, split)->Train(*train_, *val_);
+  auto resumed = MakeTrainer(options, split);
+  EXPECT_EQ(resumed->Train(*train_, *val_).start_epoch, 1);
+  // Validation reads the average: equal metrics need it restored exactly.
+  EXPECT_EQ(DeterministicColumns(full / "metrics.csv"),
+            DeterministicColumns(split / "metrics.csv"));
+  ExpectSameWeights(reference->model(), resumed->model());
+  ExpectSameWeights(LoadLabelerFromCheckpoint(full / "checkpoints/last.pt"),
+                    LoadLabelerFromCheckpoint(split / "checkpoints/last.pt"));
+  // A checkpoint without an average resumes into an averaged run (the
+  // average starts from its weights), and the other way round.
+  const auto plain = root_ / "plain";
+  TrainerOptions plain_one = Options(1);
+  MakeTrainer(plain_one, plain)->Train(*train_, *val_);
+  EXPECT_EQ(MakeTrainer(WithAverage(Options(2), 0.8), plain)
+                ->Train(*train_, *val_)
+                .epochs_completed,
+            2);
+  auto unaveraged = MakeTrainer(Options(3), plain);
+  EXPECT_EQ(unaveraged->Train(*train_, *val_).epochs_completed, 3);
+}
+
 TEST(TrainerOptions, DecodeAndValidate) {
   const TrainerOptions options = DecodeTrainerOptions(
       ParseYaml("batch_size: 32\nmax_epochs: 4\nresume: false\n"
@@ -755,6 +844,13 @@ TEST(TrainerOptions, DecodeAndValidate) {
             1.5);
   EXPECT_THROW(DecodeTrainerOptions(ParseYaml("gradient_clip_val: -1\n", "t")),
                ConfigError);
+  EXPECT_EQ(options.ema_decay, 0.0);
+  EXPECT_EQ(
+      DecodeTrainerOptions(ParseYaml("ema_decay: 0.999\n", "t")).ema_decay,
+      0.999);
+  for (const char* bad : {"ema_decay: 1\n", "ema_decay: -0.1\n"}) {
+    EXPECT_THROW(DecodeTrainerOptions(ParseYaml(bad, "t")), ConfigError) << bad;
+  }
 }
 
 TEST(LayoutMetricsCsv, RoundTripsPerEpochLayoutCounts) {
