@@ -486,6 +486,19 @@ TEST(ResultsTest, ReadmeQuotesTheRecipeRunAsItsReportSaysIt) {
                             "any_layout_perturbed8r_fourier_cross2_60"}));
 }
 
+// The larger rates and the weight average (results/any_layout_average/):
+// the README quotes each new variant on each take, and the per-layout HDM05
+// model with the average, bold.
+TEST(ResultsTest, ReadmeQuotesTheWeightAverageRunAsItsReportSaysIt) {
+  auto cells =
+      OnEveryAnyLayoutTake({"any_layout_perturbed8r_fourier_lr2e3_60",
+                            "any_layout_perturbed8r_fourier_lr3e3cos_60",
+                            "any_layout_perturbed8r_fourier_ema_60"});
+  cells.emplace_back("hdm05_layout_60_ema", "hdm05");
+  ExpectReadmeQuotesBoldAccuracies("results/any_layout_average/any_layout.csv",
+                                   cells);
+}
+
 TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
   const std::string readme = ResultsReadme();
   for (const std::string dir :
