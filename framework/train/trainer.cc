@@ -784,12 +784,8 @@ Trainer::Trainer(TrainerOptions options,
              "engine trains in fp32");
   }
   if (options_.ema_decay > 0) {
-    std::vector<torch::Tensor> weights = model_->parameters();
-    for (const torch::Tensor& buffer : model_->buffers()) {
-      weights.push_back(buffer);
-    }
-    average_ =
-        std::make_unique<WeightAverage>(std::move(weights), options_.ema_decay);
+    average_ = std::make_unique<WeightAverage>(
+        WeightAverage::WeightsOf(*model_), options_.ema_decay);
   }
 }
 

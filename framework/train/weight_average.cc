@@ -23,6 +23,13 @@ WeightAverage::WeightAverage(std::vector<at::Tensor> weights, double decay)
   }
 }
 
+std::vector<at::Tensor> WeightAverage::WeightsOf(
+    const torch::nn::Module& module) {
+  std::vector<at::Tensor> weights = module.parameters();
+  for (const at::Tensor& buffer : module.buffers()) weights.push_back(buffer);
+  return weights;
+}
+
 double WeightAverage::DecayAt(double decay, int64_t step) {
   const double t = static_cast<double>(std::max<int64_t>(step, 0));
   return std::min(decay, (1.0 + t) / (10.0 + t));

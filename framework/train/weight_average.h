@@ -10,7 +10,7 @@
 // (BatchNorm's num_batches_tracked) are copied. The trainer validates and
 // checkpoints the average (`train.ema_decay`, trainer.h).
 //
-//   WeightAverage average(model->parameters() + model->buffers(), 0.999);
+//   WeightAverage average(WeightAverage::WeightsOf(*model), 0.999);
 //   average.Reset();               // a = w, after loading any weights
 //   ... optimizer step t ...; average.Update(t);
 //   { WeightAverage::Swapped in(&average); Validate(); }  // w <-> a
@@ -37,9 +37,12 @@ namespace soma {
 
 class WeightAverage {
  public:
-  /// `weights`: the model's parameters and buffers (handles, not clones).
-  /// `decay` in (0, 1); ConfigError otherwise.
+  /// `weights`: the model's parameters and buffers (handles, not clones;
+  /// WeightsOf). `decay` in (0, 1); ConfigError otherwise.
   WeightAverage(std::vector<at::Tensor> weights, double decay);
+
+  /// A module's parameters, then its buffers (handles).
+  static std::vector<at::Tensor> WeightsOf(const torch::nn::Module& module);
 
   /// The decay of step `step` (1-based): min(decay, (1 + step) / (10 +
   /// step)).
@@ -59,8 +62,6 @@ class WeightAverage {
   /// archive of `module.save` would until it is serialised).
   void SaveAverage(const torch::nn::Module& module,
                    torch::serialize::OutputArchive* archive) const;
-
-  double decay() const { return decay_; }
 
   /// Swaps the average in for a scope (validation, saving), exception-safe.
   class Swapped {

@@ -744,9 +744,7 @@ TEST_F(TrainerTest, WeightAverageIsCheckpointedAndLeavesTrainingAsIs) {
     std::vector<torch::Tensor> expected;
     Trainer* raw = trainer.get();
     const auto weights = [&] {
-      std::vector<torch::Tensor> w = raw->model()->parameters();
-      for (const torch::Tensor& b : raw->model()->buffers()) w.push_back(b);
-      return w;
+      return WeightAverage::WeightsOf(*raw->model());
     };
     for (const torch::Tensor& w : weights()) {
       expected.push_back(w.detach().to(torch::kDouble));
@@ -772,8 +770,7 @@ TEST_F(TrainerTest, WeightAverageIsCheckpointedAndLeavesTrainingAsIs) {
     // Both checkpoints' model is the average (num_batches_tracked, an
     // integer, is the live count).
     Labeler loaded = LoadLabelerFromCheckpoint(dir / "checkpoints/last.pt");
-    std::vector<torch::Tensor> got = loaded->parameters();
-    for (const torch::Tensor& t : loaded->buffers()) got.push_back(t);
+    const std::vector<torch::Tensor> got = WeightAverage::WeightsOf(*loaded);
     ASSERT_EQ(got.size(), expected.size());
     for (size_t i = 0; i < got.size(); ++i) {
       EXPECT_TRUE(

@@ -89,16 +89,10 @@ struct TinyNet : torch::nn::Module {
   torch::nn::BatchNorm1d norm;
 };
 
-std::vector<torch::Tensor> Weights(torch::nn::Module& net) {
-  std::vector<torch::Tensor> weights = net.parameters();
-  for (const torch::Tensor& b : net.buffers()) weights.push_back(b);
-  return weights;
-}
-
 TEST(WeightAverage, SavedAverageLoadsIntoAModuleAndDoesNotAliasTheWeights) {
   torch::manual_seed(5);
   TinyNet net;
-  WeightAverage average(Weights(net), 0.9);
+  WeightAverage average(WeightAverage::WeightsOf(net), 0.9);
   average.Reset();
   for (int64_t step = 1; step <= 3; ++step) {
     {
@@ -115,7 +109,9 @@ TEST(WeightAverage, SavedAverageLoadsIntoAModuleAndDoesNotAliasTheWeights) {
   // serialised: the archive holds copies.
   std::vector<torch::Tensor> averaged;
   average.Swap();
-  for (const torch::Tensor& w : Weights(net)) averaged.push_back(w.clone());
+  for (const torch::Tensor& w : WeightAverage::WeightsOf(net)) {
+    averaged.push_back(w.clone());
+  }
   average.Swap();
   {
     torch::NoGradGuard no_grad;
@@ -128,7 +124,7 @@ TEST(WeightAverage, SavedAverageLoadsIntoAModuleAndDoesNotAliasTheWeights) {
   torch::serialize::InputArchive in;
   in.load_from(bytes);
   loaded.load(in);
-  const std::vector<torch::Tensor> got = Weights(loaded);
+  const std::vector<torch::Tensor> got = WeightAverage::WeightsOf(loaded);
   ASSERT_EQ(got.size(), averaged.size());
   for (size_t i = 0; i < got.size(); ++i) {
     EXPECT_TRUE(torch::equal(got[i], averaged[i])) << "weight " << i;
