@@ -26,7 +26,9 @@
 # trained again); the table is results/any_layout_finetune.csv, one line per
 # target, seed and epoch count: the training minutes (the sum of the epochs'
 # wall time in metrics.csv) and the per-frame accuracy and F1 (mean over the
-# take's frames, from soma eval's metrics.yaml).
+# take's frames, from soma eval's metrics.yaml). Epochs 0 is the conditioned
+# model itself, from the reproduction's own evaluation of it on the take
+# (left out when the reproduction did not label that take with it).
 set -euo pipefail
 SOMA=${1:-./build/soma}
 EPOCHS=${2:-1 2 4}
@@ -102,6 +104,12 @@ for target in "${targets[@]}"; do
     fi
     # The base's network: its model.* overrides (e.g. fourier_bands).
     mapfile -t model_args < <(sed -n 's/^- \(model\..*\)$/\1/p' "$base/seed$seed/.hydra/overrides.yaml")
+    # Epochs 0: the conditioned model as it is, scored by the reproduction on
+    # the same take (its tests/<take>_..._perframe_seed0_*/eval), if it did.
+    base_eval=("$base/seed$seed/tests/${stem}_OC_05_G_03_BT_00_perframe_seed0_"*/eval/metrics.yaml)
+    if [[ -f ${base_eval[0]} ]]; then
+      echo "$name,$seed,0,0.00,$(metric "${base_eval[0]}" acc_mean),$(metric "${base_eval[0]}" f1_mean),$init" >>"$tmp"
+    fi
     for epochs in $EPOCHS; do
       run="$RUNS/$name/seed$seed/epochs$epochs"
       if [[ ! -f $run/eval/metrics.yaml ]]; then

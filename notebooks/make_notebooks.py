@@ -74,7 +74,10 @@ NOTEBOOKS = {
         "its own layout given at label time, beside the per-layout model trained on that layout. Plot: one "
         "panel per take, a bar per conditioned variant (mean over seeds ± seed std, each seed a dot from "
         "results/any_layout_seeds.csv), the per-layout model as a line and the issue's target, at most 3 points "
-        "behind it, shaded. The paper trains one model per layout, so there is no paper column.",
+        "behind it, shaded. The paper trains one model per layout, so there is no paper column. When the folder "
+        "also holds fine-tuning tables (finetune*.csv of ablations/any_layout_finetune.sh), a second figure, "
+        "any_layout_finetune.png, plots each take's accuracy against minutes of fine-tuning on its layout, with "
+        "the per-layout models of the report's claims as lines.",
     ),
     "claims": (
         "The paper's claims, across every table",
@@ -95,6 +98,17 @@ TABLES = {
 if df is not None:
     display(sp.claims_counts(df))
     display(sp.summary(df))""",
+}
+
+# Notebooks with more cells after the plot.
+EXTRA = {
+    "any_layout": """\
+# Fine-tuning (item 3's second question): accuracy on each take against minutes of training on its
+# layout, from the finetune*.csv tables of ablations/any_layout_finetune.sh beside the report.
+ft = sp.load_finetune() if df is not None else None
+if ft is not None:
+    fig = sp.plot_any_layout_finetune(ft, df)
+    sp.save(fig, NAME + "_finetune")  # $SOMA_FIGURES_DIR/any_layout_finetune.png""",
 }
 
 SETUP = '''\
@@ -149,6 +163,8 @@ def notebook(name: str, title: str, text: str) -> nbformat.NotebookNode:
         new_code_cell(TABLES.get(name, TABLE)),
         new_code_cell(PLOT.format(name=name)),
     ]
+    if name in EXTRA:
+        nb.cells.append(new_code_cell(EXTRA[name]))
     for i, cell in enumerate(nb.cells):
         cell["id"] = f"{name}-{i}"  # stable ids: regenerating does not churn the files
     return nb

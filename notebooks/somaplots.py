@@ -919,6 +919,79 @@ def plot_any_layout(df: pd.DataFrame, metric: str = "acc"):
     return fig
 
 
+FINETUNE_GLOBS = ("finetune*.csv", "any_layout_finetune*.csv")
+
+
+def load_finetune() -> pd.DataFrame | None:
+    """Every fine-tuning table beside the report (<results>/finetune*.csv or
+    any_layout_finetune*.csv, written by ablations/any_layout_finetune.sh: target, seed, epochs,
+    train_minutes, acc_mean, f1_mean, checkpoint; epochs 0 is the conditioned model before
+    fine-tuning) as one DataFrame with a `run` column, the file's stem without its "finetune"
+    prefix (e.g. "lr1e-4"), or None when there is none."""
+    paths = sorted({p for g in FINETUNE_GLOBS for p in results_dir().glob(g)})
+    if not paths:
+        print(f"fine-tuning: not run yet (no finetune*.csv in {results_dir()})")
+        return None
+    frames = []
+    for path in paths:
+        d = pd.read_csv(path)
+        d["run"] = re.sub(r"^(any_layout_)?finetune_?", "", path.stem) or "default"
+        frames.append(d)
+    df = pd.concat(frames, ignore_index=True)
+    print(f"fine-tuning: {len(paths)} tables, {len(df)} rows ({', '.join(ordered(df['run']))})")
+    return df
+
+
+def plot_any_layout_finetune(ft: pd.DataFrame, df: pd.DataFrame | None = None, metric: str = "acc"):
+    """Issue #25 item 3's second question: how many minutes of training on a new layout close the
+    rest of the gap. One panel per take: per fine-tuning table, the take's accuracy per frame
+    against minutes of training (mean over seeds of each epoch count; bars: seed std; epochs 0 is
+    the conditioned model as it was), and, from the report `df` (any_layout.csv), the per-layout
+    models item 3's claims compare with, as lines."""
+    col = f"{metric}_mean"
+    targets = ordered(ft["target"])
+    fig, axes = plt.subplots(1, len(targets), figsize=(6.5 * len(targets), 4.6), constrained_layout=True,
+                             squeeze=False)
+    claims = None
+    claims_path = results_dir() / "any_layout_claims.csv"
+    if claims_path.is_file():
+        claims = pd.read_csv(claims_path)
+        claims = claims[(claims["kind"] == "not_behind") & (claims["metric"] == metric)]
+    for ax, target in zip(axes[0], targets):
+        g = ft[ft["target"] == target]
+        for run in ordered(g["run"]):
+            r = g[g["run"] == run].groupby("epochs").agg(
+                minutes=("train_minutes", "mean"), value=(col, "mean"), std=(col, "std"), n=("seed", "count"))
+            seeds = int(r["n"].max())
+            ax.errorbar(r["minutes"], 100 * r["value"], yerr=100 * r["std"].fillna(0), marker="o", capsize=3,
+                        label=f"fine-tuned, {run} ({seeds} seed{'s' if seeds != 1 else ''})")
+            for epochs, row in r.iterrows():
+                if epochs > 0:
+                    ax.annotate(f"{epochs}", (row["minutes"], 100 * row["value"]), textcoords="offset points",
+                                xytext=(0, 6), ha="center", fontsize=7)
+        if df is not None:
+            d = _metric(df, metric)
+            d = d[(d["test"] == target) & d["mean"].notna()]
+            refs = ordered(claims[claims["worse_test"] == target]["better"]) if claims is not None else []
+            refs = refs or [PER_LAYOUT.get(target, "")]
+            drawn = 0
+            for variant in refs:
+                row = d[d["variant"] == variant]
+                if row.empty:
+                    continue
+                value = row.iloc[0]["mean"]
+                ax.axhline(value, color="tab:green", ls=("-", "--", ":", "-.")[drawn % 4], lw=1.5,
+                           label=f"per-layout model {variant}: {value:.2f}")
+                drawn += 1
+        ax.set_xlabel("minutes of fine-tuning (sum of the epochs' wall time; labels: epochs)")
+        ax.set_ylabel(f"{metric} per frame (%)")
+        ax.grid(alpha=0.3)
+        ax.set_title(target, fontsize=10)
+        ax.legend(fontsize=7, loc="lower right")
+    fig.suptitle("Fine-tuning a layout-conditioned model on a new layout: accuracy against minutes of training")
+    return fig
+
+
 PLOTS = {
     "table1": plot_table1,
     "table2": plot_table2,

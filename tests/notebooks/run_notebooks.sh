@@ -97,6 +97,16 @@ for nb in "${notebooks[@]}"; do
       failed+=("$name")
       continue
     fi
+    # any_layout.ipynb also plots the fine-tuning tables beside its report.
+    if [[ $name == any_layout ]]; then
+      tables=("$results"/finetune*.csv "$results"/any_layout_finetune*.csv)
+      extra=$figures/${name}_finetune.png
+      if ((${#tables[@]} > 0)) && [[ ! -s "$extra" || ! "$extra" -nt "$stamp" ]]; then
+        echo "FAIL $name: ${tables[0]} exists but no fresh $extra was written"
+        failed+=("$name")
+        continue
+      fi
+    fi
     echo "ok   $name ($((SECONDS - t0)) s): $png${budget:+ (training budget: $budget)}"
   else
     if ! grep -q "not run yet" "$tmp/$name.ipynb"; then
@@ -118,6 +128,7 @@ for csv in "$results"/*.csv; do
   base=${base%_curves}  # <name>_curves.csv is read by <name>.ipynb
   base=${base%_seeds}   # <name>_seeds.csv too (any_layout.ipynb: a dot per seed)
   [[ $base == *_claims ]] && base=claims  # <name>_claims.csv by claims.ipynb
+  [[ $base == finetune* || $base == any_layout_finetune* ]] && base=any_layout  # its fine-tuning figure
   [[ -f "$nbdir/$base.ipynb" ]] || echo "note: no notebook plots $csv"
 done
 echo "run_notebooks: ${#notebooks[@]} notebooks in $((SECONDS - start)) s; results $results, figures $figures"
