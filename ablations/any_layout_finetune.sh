@@ -9,6 +9,7 @@
 # `soma eval`).
 #
 #   [BASE=<model dir>] [TRAIN_ARGS="key=value ..." TAG=<name>] [OUT=<table.csv>] \
+#   [TARGETS="hdm05 pig"] \
 #   bash ablations/any_layout_finetune.sh [soma binary] [epochs="1 2 4"] [seeds="0 1 2"]
 #
 # BASE: another conditioned variant to start from, its directory under
@@ -18,7 +19,8 @@
 # results/reproduce/finetune/<BASE's name>/, and OUT defaults to
 # results/any_layout_finetune_<BASE's name>.csv. TRAIN_ARGS: more overrides
 # of the fine-tuning runs (e.g. optimizer.lr=1e-4); they need a TAG, which
-# names their runs and table (<BASE's name>_<TAG>).
+# names their runs and table (<BASE's name>_<TAG>). TARGETS: the takes to
+# fine-tune for (hdm05, pig; default both).
 #
 # Needs the finished any_layout reproduction (its models and test data under
 # results/reproduce/) and the fitted layouts (ablations/make_layouts.sh).
@@ -74,8 +76,22 @@ else
 fi
 
 # target: name, take stem, layout file
-targets=("hdm05 HDM_mm_01-02_03_120 results/layouts/hdm05.json"
+all_targets=("hdm05 HDM_mm_01-02_03_120 results/layouts/hdm05.json"
   "pig PiG_Motion-FlatFoot-Hole results/layouts/pig.json")
+targets=()
+for name in ${TARGETS:-hdm05 pig}; do
+  found=
+  for target in "${all_targets[@]}"; do
+    if [[ ${target%% *} == "$name" ]]; then
+      targets+=("$target")
+      found=1
+    fi
+  done
+  if [[ -z $found ]]; then
+    echo "any_layout_finetune: TARGETS names '$name'; expected hdm05 or pig" >&2
+    exit 1
+  fi
+done
 
 metric() {  # metric <metrics.yaml> <key>
   awk -v k="$2:" '$1 == k { print $2 }' "$1"
