@@ -943,11 +943,12 @@ def load_finetune() -> pd.DataFrame | None:
 
 
 def plot_any_layout_finetune(ft: pd.DataFrame, df: pd.DataFrame | None = None, metric: str = "acc"):
-    """Issue #25 item 3's second question: how many minutes of training on a new layout close the
-    rest of the gap. One panel per take: per fine-tuning table, the take's accuracy per frame
-    against minutes of training (mean over seeds of each epoch count; bars: seed std; epochs 0 is
-    the conditioned model as it was), and, from the report `df` (any_layout.csv), the per-layout
-    models item 3's claims compare with, as lines."""
+    """Issue #25 item 3's second question: how much training on a new layout closes the rest of
+    the gap. One panel per take: per fine-tuning table, the take's accuracy per frame against
+    epochs of fine-tuning (mean over seeds of each epoch count; bars: seed std; epochs 0 is the
+    conditioned model as it was; each point labelled with the mean minutes of training, wall time
+    that depends on what else ran beside it, hence epochs on the axis), and, from the report `df`
+    (any_layout.csv), the per-layout models item 3's claims compare with, as lines."""
     col = f"{metric}_mean"
     targets = ordered(ft["target"])
     fig, axes = plt.subplots(1, len(targets), figsize=(6.5 * len(targets), 4.6), constrained_layout=True,
@@ -963,12 +964,12 @@ def plot_any_layout_finetune(ft: pd.DataFrame, df: pd.DataFrame | None = None, m
             r = g[g["run"] == run].groupby("epochs").agg(
                 minutes=("train_minutes", "mean"), value=(col, "mean"), std=(col, "std"), n=("seed", "count"))
             seeds = int(r["n"].max())
-            ax.errorbar(r["minutes"], 100 * r["value"], yerr=100 * r["std"].fillna(0), marker="o", capsize=3,
+            ax.errorbar(r.index, 100 * r["value"], yerr=100 * r["std"].fillna(0), marker="o", capsize=3,
                         label=f"fine-tuned, {run} ({seeds} seed{'s' if seeds != 1 else ''})")
             for epochs, row in r.iterrows():
                 if epochs > 0:
-                    ax.annotate(f"{epochs}", (row["minutes"], 100 * row["value"]), textcoords="offset points",
-                                xytext=(0, 6), ha="center", fontsize=7)
+                    ax.annotate(f"{row['minutes']:.1f} min", (epochs, 100 * row["value"]),
+                                textcoords="offset points", xytext=(0, 6), ha="center", fontsize=7)
         if df is not None:
             d = _metric(df, metric)
             d = d[(d["test"] == target) & d["mean"].notna()]
@@ -983,12 +984,16 @@ def plot_any_layout_finetune(ft: pd.DataFrame, df: pd.DataFrame | None = None, m
                 ax.axhline(value, color="tab:green", ls=("-", "--", ":", "-.")[drawn % 4], lw=1.5,
                            label=f"per-layout model {variant}: {value:.2f}")
                 drawn += 1
-        ax.set_xlabel("minutes of fine-tuning (sum of the epochs' wall time; labels: epochs)")
+        ax.set_xscale("symlog", base=2, linthresh=1)
+        ticks = sorted(int(e) for e in g["epochs"].unique())
+        ax.set_xticks(ticks, [str(e) for e in ticks])
+        ax.set_xlim(-0.3, max(ticks) * 1.25)
+        ax.set_xlabel("epochs of fine-tuning on the take's layout (labels: minutes of training, mean over seeds)")
         ax.set_ylabel(f"{metric} per frame (%)")
         ax.grid(alpha=0.3)
         ax.set_title(target, fontsize=10)
         ax.legend(fontsize=7, loc="lower right")
-    fig.suptitle("Fine-tuning a layout-conditioned model on a new layout: accuracy against minutes of training")
+    fig.suptitle("Fine-tuning a layout-conditioned model on a new layout: accuracy against epochs of training")
     return fig
 
 

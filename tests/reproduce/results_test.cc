@@ -499,6 +499,63 @@ TEST(ResultsTest, ReadmeQuotesTheWeightAverageRunAsItsReportSaysIt) {
                                    cells);
 }
 
+// Fine-tuning the averaged conditioned model (results/any_layout_finetune/):
+// the README quotes the report's models bold, the two from-scratch variants
+// as "a, b and c%", and each fine-tuning table's means over seeds per epoch
+// count, in epoch order, in the phrasing of its sentence.
+TEST(ResultsTest, ReadmeQuotesTheFineTuningOfTheAverageAsItsTablesSayIt) {
+  const std::string dir = "results/any_layout_finetune/";
+  ExpectReadmeQuotesBoldAccuracies(
+      dir + "any_layout.csv",
+      {{"any_layout_perturbed8r_fourier_ema_60", "hdm05"},
+       {"hdm05_layout_60", "hdm05"},
+       {"hdm05_layout_60_ema", "hdm05"}});
+  const std::string readme = Readme();
+  for (const std::string variant :
+       {"any_layout_perturbed8r_fourier_ema9997_60",
+        "any_layout_perturbed8r_fourier_share80_ema_60"}) {
+    const std::string csv = dir + "any_layout.csv";
+    EXPECT_THAT(readme,
+                MatchesSomewhere(
+                    Cell(csv, variant, "hdm05", "acc", 2, false) + ",\\s+" +
+                    Cell(csv, variant, "cmu", "acc", 2, false) + "\\s+and\\s+" +
+                    Cell(csv, variant, "pig", "acc", 2, false) + "%"))
+        << variant;
+  }
+  const std::string sep = "\\s+/\\s+";
+  // "**92.51%** to 94.09, 94.43, 94.82, 95.07 and **95.22%**" (0 to 16
+  // epochs); "95.81% before, 95.80 / 95.73 / 95.88 / 95.24 / 94.83%".
+  const auto slow = FinetuneMeans(dir + "finetune_lr1e-4_ema.csv");
+  ASSERT_EQ(slow.size(), 2u);
+  const std::vector<std::string>& h = slow.at("hdm05");
+  ASSERT_EQ(h.size(), 6u);
+  EXPECT_THAT(readme,
+              MatchesSomewhere("\\*\\*" + h[0] + "%\\*\\*\\s+to\\s+" + h[1] +
+                               ",\\s+" + h[2] + ",\\s+" + h[3] + ",\\s+" +
+                               h[4] + "\\s+and\\s+\\*\\*" + h[5] + "%\\*\\*"));
+  const std::vector<std::string>& p = slow.at("pig");
+  ASSERT_EQ(p.size(), 6u);
+  EXPECT_THAT(readme,
+              MatchesSomewhere(p[0] + "%\\s+before,\\s+" + p[1] + sep + p[2] +
+                               sep + p[3] + sep + p[4] + sep + p[5] + "%"));
+  // "95.01 and 95.57% after 4 and 16 epochs and **96.03%** after 32";
+  // "95.87 and 94.61% after 4 and 16".
+  const auto fast = FinetuneMeans(dir + "finetune_lr3e-4cos_ema.csv");
+  ASSERT_EQ(fast.at("hdm05").size(), 4u);
+  EXPECT_THAT(readme,
+              MatchesSomewhere(
+                  fast.at("hdm05")[1] + "\\s+and\\s+" + fast.at("hdm05")[2] +
+                  "%\\s+after\\s+4\\s+and\\s+16\\s+epochs\\s+and\\s+"
+                  "\\*\\*" +
+                  fast.at("hdm05")[3] + "%\\*\\*"));
+  const auto pig = FinetuneMeans(dir + "finetune_lr3e-4cos_ema_pig.csv");
+  ASSERT_EQ(pig.at("pig").size(), 3u);
+  EXPECT_THAT(
+      readme,
+      MatchesSomewhere(pig.at("pig")[1] + "\\s+and\\s+" + pig.at("pig")[2] +
+                       "%\\s+after\\s+4\\s+and\\s+16"));
+}
+
 TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
   const std::string readme = ResultsReadme();
   for (const std::string dir :
