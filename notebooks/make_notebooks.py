@@ -76,8 +76,8 @@ NOTEBOOKS = {
         "results/any_layout_seeds.csv), the per-layout model as a line and the issue's target, at most 3 points "
         "behind it, shaded. The paper trains one model per layout, so there is no paper column. When the folder "
         "also holds fine-tuning tables (finetune*.csv of ablations/any_layout_finetune.sh), a second figure, "
-        "any_layout_finetune.png, plots each take's accuracy against minutes of fine-tuning on its layout, with "
-        "the per-layout models of the report's claims as lines.",
+        "any_layout_finetune.png, plots each take's accuracy against epochs of fine-tuning on its layout (each "
+        "point labelled with its minutes of training), with the per-layout models of the report's claims as lines.",
     ),
     "claims": (
         "The paper's claims, across every table",
@@ -103,7 +103,7 @@ if df is not None:
 # Notebooks with more cells after the plot.
 EXTRA = {
     "any_layout": """\
-# Fine-tuning (item 3's second question): accuracy on each take against minutes of training on its
+# Fine-tuning (item 3's second question): accuracy on each take against epochs of training on its
 # layout, from the finetune*.csv tables of ablations/any_layout_finetune.sh beside the report.
 ft = sp.load_finetune() if df is not None else None
 if ft is not None:
