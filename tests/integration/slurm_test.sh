@@ -423,16 +423,19 @@ grep -q "submitted SLURM array job [0-9]* (1 models: 2)" repro2.txt ||
 step "8. re-run in $(( SECONDS - start ))s submitted only the failed model: $(repro_status)"
 
 # --- 9. reproduce: wait=false, a re-run that waits, a model preempted -------
-# The two good variants with 4-epoch trainings, submitted with wait=false; the
+# The two good variants with 12-epoch trainings, submitted with wait=false; the
 # same command with wait=true does not submit them again but waits for them;
 # meanwhile model 0 is preempted after its first epoch (the chain script
 # passes the wrapper's SIGUSR1 on to the training, which checkpoints and
 # stops), requeued and resumed from last.pt; both models end done and the table has both rows.
+# (An epoch of this tiny model takes well under a second: with 4 epochs, on a
+# machine busy with a training, model 0 once ended before the signal reached
+# it, and was not requeued.)
 long_repro=(reproduce mini task.ablations_dir="$rp/ablations" task.root="$rp/root_long"
             task.results_dir="$rp/results_long" task.data_dir="$rp/data"
             hydra/launcher=slurm hydra.launcher.poll_interval_s=0.5
             hydra.launcher.cpus_per_task=1 'task.variants=[base,lsm]'
-            'task.budget=["scale=cpu","train.max_epochs=4","train.train_frames=3072","train.val_frames=256","train.batch_size=32","model.d_model=10","model.hidden=16","model.backbone.num_layers=1","train.progress=false"]')
+            'task.budget=["scale=cpu","train.max_epochs=12","train.train_frames=3072","train.val_frames=256","train.batch_size=32","model.d_model=10","model.hidden=16","model.backbone.num_layers=1","train.progress=false"]')
 start=$SECONDS
 "$soma" "${long_repro[@]}" hydra.launcher.wait=false hydra.run.dir="$rp/run3" >repro3.txt 2>&1 ||
   { cat repro3.txt; fail "reproduce with wait=false"; }
@@ -447,7 +450,7 @@ for _ in $(seq 600); do
   (( $(tail -n +2 "$m0/metrics.csv" 2>/dev/null | wc -l) >= 1 )) && break
   sleep 0.1
 done
-(( $(tail -n +2 "$m0/metrics.csv" | wc -l) < 4 )) || fail "model 0 finished before it was preempted"
+(( $(tail -n +2 "$m0/metrics.csv" | wc -l) < 12 )) || fail "model 0 finished before it was preempted"
 array=$(sed -n "s/.*array_job_id: *'\{0,1\}\([0-9]*\).*/\1/p" "$long_ledger/.slurm/submissions.yaml" | tail -1)
 scancel --signal=USR1 -b "${array}_0"
 set +e
