@@ -847,18 +847,26 @@ PER_LAYOUT = {"hdm05": "hdm05_layout", "cmu": "cmu41_layout", "pig": "pig_layout
 TARGET_POINTS = 3.0
 
 
+def not_behind_claims(metric: str = "acc") -> pd.DataFrame | None:
+    """The spec's `not_behind` claims on `metric` as the report wrote them
+    (<results>/any_layout_claims.csv: better = the per-layout variant, worse_test = the take), the
+    claims the run decided before those it did not run; None without the file."""
+    path = results_dir() / "any_layout_claims.csv"
+    if not path.is_file():
+        return None
+    c = pd.read_csv(path)
+    c = c[(c["kind"] == "not_behind") & (c["metric"] == metric)]
+    return pd.concat([c[c["verdict"] != "not run"], c[c["verdict"] == "not run"]])
+
+
 def any_layout_targets(metric: str = "acc") -> tuple[dict[str, tuple[str, float]], set[str]]:
     """(take -> (its per-layout variant, points a conditioned model may trail it), every per-layout
-    variant), from the spec's `not_behind` claims as the report wrote them
-    (<results>/any_layout_claims.csv: better = the per-layout variant, worse_test = the take; a
-    claim the run decided before one it did not run); PER_LAYOUT and TARGET_POINTS without it."""
-    path = results_dir() / "any_layout_claims.csv"
+    variant), from not_behind_claims (the first claim of each take); PER_LAYOUT and TARGET_POINTS
+    without them."""
     targets: dict[str, tuple[str, float]] = {}
     per_layout = set(PER_LAYOUT.values())
-    if path.is_file():
-        c = pd.read_csv(path)
-        c = c[(c["kind"] == "not_behind") & (c["metric"] == metric)]
-        c = pd.concat([c[c["verdict"] != "not run"], c[c["verdict"] == "not run"]])
+    c = not_behind_claims(metric)
+    if c is not None:
         for _, row in c.iterrows():
             targets.setdefault(row["worse_test"], (row["better"], float(row["tolerance"])))
             per_layout.add(row["better"])
@@ -953,11 +961,7 @@ def plot_any_layout_finetune(ft: pd.DataFrame, df: pd.DataFrame | None = None, m
     targets = ordered(ft["target"])
     fig, axes = plt.subplots(1, len(targets), figsize=(6.5 * len(targets), 4.6), constrained_layout=True,
                              squeeze=False)
-    claims = None
-    claims_path = results_dir() / "any_layout_claims.csv"
-    if claims_path.is_file():
-        claims = pd.read_csv(claims_path)
-        claims = claims[(claims["kind"] == "not_behind") & (claims["metric"] == metric)]
+    claims = not_behind_claims(metric)
     for ax, target in zip(axes[0], targets):
         g = ft[ft["target"] == target]
         for run in ordered(g["run"]):

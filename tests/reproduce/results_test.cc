@@ -505,8 +505,9 @@ TEST(ResultsTest, ReadmeQuotesTheWeightAverageRunAsItsReportSaysIt) {
 // count, in epoch order, in the phrasing of its sentence.
 TEST(ResultsTest, ReadmeQuotesTheFineTuningOfTheAverageAsItsTablesSayIt) {
   const std::string dir = "results/any_layout_finetune/";
+  const std::string csv = dir + "any_layout.csv";
   ExpectReadmeQuotesBoldAccuracies(
-      dir + "any_layout.csv",
+      csv,
       {{"any_layout_perturbed8r_fourier_ema_60", "hdm05"},
        {"hdm05_layout_60", "hdm05"},
        {"hdm05_layout_60_ema", "hdm05"}});
@@ -514,7 +515,6 @@ TEST(ResultsTest, ReadmeQuotesTheFineTuningOfTheAverageAsItsTablesSayIt) {
   for (const std::string variant :
        {"any_layout_perturbed8r_fourier_ema9997_60",
         "any_layout_perturbed8r_fourier_share80_ema_60"}) {
-    const std::string csv = dir + "any_layout.csv";
     EXPECT_THAT(readme,
                 MatchesSomewhere(
                     Cell(csv, variant, "hdm05", "acc", 2, false) + ",\\s+" +
