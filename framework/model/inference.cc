@@ -11,6 +11,8 @@
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <span>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -32,6 +34,13 @@ InferenceOptions DecodeInferenceOptions(const ConfigNode& node) {
   reader.Read("permute", &options.permute);
   reader.Read("seed", &options.seed);
   reader.Read("use_fast_path", &options.use_fast_path);
+  std::string decode(ToString(options.decode));
+  reader.Read("decode", &decode);
+  reader.Check("decode",
+               decode == ToString(LabelDecode::kArgmax) ||
+                   decode == ToString(LabelDecode::kMatching),
+               "one of argmax, matching");
+  options.decode = LabelDecodeFromString(decode);
   reader.Check("batch_size", options.batch_size > 0, "batch_size > 0");
   reader.Finish();
   return options;
@@ -57,6 +66,38 @@ at::Tensor ResolveDuplicateLabels(const at::Tensor& label_ids,
   const torch::Tensor duplicate =
       counts.gather(1, ids).ge(2).logical_and(ids.lt(num_labels));
   return ids.masked_fill(duplicate, num_labels);
+}
+
+at::Tensor MatchLabels(const at::Tensor& probabilities,
+                       const at::Tensor& valid) {
+  if (probabilities.dim() != 3 || valid.dim() != 2 ||
+      probabilities.size(0) != valid.size(0) ||
+      probabilities.size(1) != valid.size(1) || probabilities.size(2) < 1) {
+    throw ShapeError(fmt::format(
+        "MatchLabels: probabilities {} must be T x P x (L+1) and valid {} "
+        "T x P",
+        ShapeString(probabilities),
+        ShapeString(valid)));
+  }
+  const torch::Tensor p = probabilities.to(torch::kFloat).contiguous();
+  const torch::Tensor ok = valid.to(torch::kBool).contiguous();
+  const int64_t frames = p.size(0), points = p.size(1), width = p.size(2);
+  torch::Tensor labels = torch::empty({frames, points}, torch::kLong);
+  const float* p_data = p.data_ptr<float>();
+  const bool* ok_data = ok.data_ptr<bool>();
+  int64_t* out = labels.data_ptr<int64_t>();
+  at::parallel_for(0, frames, 1, [&](int64_t t0, int64_t t1) {
+    for (int64_t t = t0; t < t1; ++t) {
+      MatchFrameLabels(
+          std::span<const float>(p_data + t * points * width,
+                                 static_cast<size_t>(points * width)),
+          std::span<const bool>(ok_data + t * points,
+                                static_cast<size_t>(points)),
+          width - 1,
+          std::span<int64_t>(out + t * points, static_cast<size_t>(points)));
+    }
+  });
+  return labels;
 }
 
 FrameLabeler::FrameLabeler(std::shared_ptr<LabelerImpl> model,
@@ -142,8 +183,11 @@ FrameLabels FrameLabeler::Label(const at::Tensor& points_in,
     result.label_confidence.narrow(0, t0, t1 - t0).copy_(confidence);
     result.predicted_ids.narrow(0, t0, t1 - t0).copy_(ids);
   }
+  const torch::Tensor valid = points.ne(0).any(-1);
   result.label_ids =
-      ResolveDuplicateLabels(result.predicted_ids, points.ne(0).any(-1), l);
+      options_.decode == LabelDecode::kMatching
+          ? MatchLabels(result.label_confidence, valid)
+          : ResolveDuplicateLabels(result.predicted_ids, valid, l);
   return result;
 }
 

@@ -7,10 +7,13 @@
 // Frames are processed in batches of `batch_size`; each frame's points get an
 // independent random permutation (seeded) before the network and the outputs
 // are permuted back. No confidence threshold is applied. If two or more
-// points of a frame are assigned the same real label, all of them become null.
+// points of a frame are assigned the same real label, all of them become null
+// (decode argmax, SOMA's rule), or the frame's labels are the most probable
+// one-to-one matching (decode matching, model/label_matching.h).
 #pragma once
 
 #include "framework/config/node.h"
+#include "framework/model/label_matching.h"
 
 #include <ATen/core/Tensor.h>
 
@@ -34,17 +37,20 @@ struct InferenceOptions {
   /// Use the optimised FastLabeler (same results to ~1e-5) when the model is
   /// supported; else the libtorch forward.
   bool use_fast_path = true;
+  /// How the rows become labels (FrameLabels::label_ids).
+  LabelDecode decode = LabelDecode::kArgmax;
   void Validate() const;  // ConfigError on violation
 };
 
-/// Decodes `batch_size`, `permute`, `seed`, `use_fast_path` (unknown keys are
-/// an error).
+/// Decodes `batch_size`, `permute`, `seed`, `use_fast_path`, `decode`
+/// (unknown keys are an error).
 InferenceOptions DecodeInferenceOptions(const ConfigNode& node);
 
 /// Per-point labels of T frames of P points, L labels (null id = L).
 struct FrameLabels {
-  /// `T x P` int64: final labels after the duplicate rule; zero (missing)
-  /// points are always null.
+  /// `T x P` int64: final labels after the duplicate rule (decode argmax)
+  /// or the matching (decode matching); zero (missing) points are always
+  /// null.
   at::Tensor label_ids;
   /// `T x P` int64: the network's argmax over the L+1 columns, before the
   /// duplicate rule (zero points included).
@@ -61,6 +67,12 @@ struct FrameLabels {
 at::Tensor ResolveDuplicateLabels(const at::Tensor& label_ids,
                                   const at::Tensor& valid,
                                   int64_t num_labels);
+
+/// MatchFrameLabels (label_matching.h) of every frame: `probabilities` `T x
+/// P x (L+1)` float (null = column L), `valid` `T x P` bool; returns `T x P`
+/// int64 labels, null = L.
+at::Tensor MatchLabels(const at::Tensor& probabilities,
+                       const at::Tensor& valid);
 
 /// Batched per-frame inference with a labeler (eval mode, no autograd).
 class FrameLabeler {

@@ -153,6 +153,43 @@ TEST(FrameLabeler, LabelsFollowTheDuplicateRuleAndZeroPointsAreNull) {
   }
 }
 
+TEST(FrameLabeler, MatchingDecodeIsTheMatchOfTheSameRows) {
+  Labeler model = SmallModel(4);
+  const torch::Tensor points = Points(7, 9);
+  InferenceOptions argmax;
+  argmax.seed = 3;
+  InferenceOptions matching = argmax;
+  matching.decode = LabelDecode::kMatching;
+  const FrameLabels a = FrameLabeler(model.ptr(), argmax).Label(points);
+  const FrameLabels m = FrameLabeler(model.ptr(), matching).Label(points);
+  // The decode changes the labels only: the rows and their argmax are those
+  // of the argmax decode.
+  EXPECT_TRUE(torch::equal(m.label_confidence, a.label_confidence));
+  EXPECT_TRUE(torch::equal(m.predicted_ids, a.predicted_ids));
+  const torch::Tensor valid = points.ne(0).any(-1);
+  EXPECT_TRUE(
+      torch::equal(m.label_ids, MatchLabels(m.label_confidence, valid)));
+  EXPECT_TRUE(m.label_ids.narrow(1, 7, 2).eq(4).all().item<bool>());
+  for (int64_t t = 0; t < 7; ++t) {
+    for (int64_t label = 0; label < 4; ++label) {
+      EXPECT_LE(m.label_ids[t].eq(label).sum().item<int64_t>(), 1);
+    }
+  }
+  // SOMA's rule also gives a labelling without a repeated label, so the
+  // matching's log-likelihood is at least as high, frame by frame.
+  auto log_likelihood = [&](const torch::Tensor& ids) {
+    return (m.label_confidence.gather(2, ids.unsqueeze(-1)).squeeze(-1).log() *
+            valid)
+        .sum(1);
+  };
+  EXPECT_TRUE(log_likelihood(m.label_ids)
+                  .ge(log_likelihood(a.label_ids) - 1e-4)
+                  .all()
+                  .item<bool>());
+  EXPECT_THROW(MatchLabels(m.label_confidence, valid.narrow(1, 0, 8)),
+               ShapeError);
+}
+
 TEST(FrameLabeler, OptionsAndShapes) {
   ConfigNode node = ConfigNode::EmptyMap();
   node.Set("batch_size", ConfigNode(30));
@@ -161,6 +198,12 @@ TEST(FrameLabeler, OptionsAndShapes) {
   EXPECT_EQ(options.batch_size, 30);
   EXPECT_EQ(options.seed, 5u);
   EXPECT_TRUE(options.permute);
+  EXPECT_EQ(options.decode, LabelDecode::kArgmax);
+  node.Set("decode", ConfigNode("matching"));
+  EXPECT_EQ(DecodeInferenceOptions(node).decode, LabelDecode::kMatching);
+  node.Set("decode", ConfigNode("hungarian"));
+  EXPECT_THROW(DecodeInferenceOptions(node), ConfigError);
+  node.Set("decode", ConfigNode("argmax"));
   node.Set("batch_size", ConfigNode(0));
   EXPECT_THROW(DecodeInferenceOptions(node), ConfigError);
   Labeler model = SmallModel(3);

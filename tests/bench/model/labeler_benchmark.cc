@@ -1,7 +1,9 @@
 // Labeler inference at the paper configuration (d_model 125, 8 layers, 5
 // heads, 35 Sinkhorn iterations, L = 41 labels, N = 44 points per frame):
 // the libtorch forward and the optimised FastLabeler at batch 1 and 30, and
-// the Sinkhorn normalization alone. items_per_second = frames per second.
+// the Sinkhorn normalization alone, and the two ways of turning its rows into
+// labels (task.inference.decode: argmax + SOMA's duplicate rule, or the
+// one-to-one matching). items_per_second = frames per second.
 //
 //   soma_bench_model_labeler_benchmark --benchmark_repetitions=5
 //       --benchmark_report_aggregates_only=true
@@ -10,6 +12,7 @@
 // plus single-thread rows of the optimised path for reference.
 #include "framework/model/fast_kernels.h"
 #include "framework/model/fast_labeler.h"
+#include "framework/model/inference.h"
 #include "framework/model/labeler.h"
 #include "framework/model/torch_utils.h"
 
@@ -146,6 +149,51 @@ BENCHMARK(BM_FastSinkhorn)
     ->Arg(1)
     ->Arg(30)
     ->Unit(benchmark::kMicrosecond)
+    ->UseRealTime();
+
+/// Peaked per-point rows over L + 1 columns, as a trained labeler's: each
+/// point puts most of its mass on one label, some frames' points on the same
+/// one (so the duplicate rule and the matching have work to do).
+torch::Tensor DecodeRows(int64_t batch) {
+  torch::manual_seed(3);
+  const torch::Tensor logits =
+      torch::randn({batch, kNumPoints, kNumLabels + 1}) * 4.0;
+  return logits.softmax(-1);
+}
+
+/// task.inference.decode=argmax: argmax per row, duplicates -> null.
+void BM_DecodeArgmax(benchmark::State& state) {
+  at::set_num_threads(1);
+  const torch::Tensor rows = DecodeRows(state.range(0));
+  const torch::Tensor valid =
+      torch::ones({state.range(0), kNumPoints}, torch::kBool);
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(
+        ResolveDuplicateLabels(rows.argmax(-1), valid, kNumLabels));
+  }
+  state.SetItemsProcessed(state.iterations() * state.range(0));
+}
+BENCHMARK(BM_DecodeArgmax)
+    ->ArgName("batch")
+    ->Arg(512)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
+
+/// task.inference.decode=matching: the Hungarian method per frame.
+void BM_DecodeMatching(benchmark::State& state) {
+  at::set_num_threads(1);
+  const torch::Tensor rows = DecodeRows(state.range(0));
+  const torch::Tensor valid =
+      torch::ones({state.range(0), kNumPoints}, torch::kBool);
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(MatchLabels(rows, valid));
+  }
+  state.SetItemsProcessed(state.iterations() * state.range(0));
+}
+BENCHMARK(BM_DecodeMatching)
+    ->ArgName("batch")
+    ->Arg(512)
+    ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
 
 }  // namespace
