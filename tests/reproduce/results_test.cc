@@ -569,30 +569,29 @@ TEST(ResultsTest, ReadmeQuotesTheMatchingDecodeAsItsReportSaysIt) {
   const std::string dir = "results/any_layout_matching/";
   const std::string csv = dir + "any_layout.csv";
   const std::string conditioned = "any_layout_perturbed8r_fourier_ema_60";
-  ExpectReadmeQuotesBoldAccuracies(
-      csv,
-      {{conditioned, "hdm05"},
-       {"hdm05_layout_60", "hdm05"},
-       {conditioned, "hdm05_matching"},
-       {"hdm05_layout_60", "hdm05_matching"},
-       {"hdm05_layout_60_ema", "hdm05_matching"},
-       {conditioned, "cmu_matching"},
-       {"cmu41_layout_60", "cmu_matching"},
-       {conditioned, "pig_matching"},
-       {"pig_layout_60", "pig_matching"}});
+  ExpectReadmeQuotesBoldAccuracies(csv,
+                                   {{conditioned, "hdm05"},
+                                    {"hdm05_layout_60", "hdm05"},
+                                    {conditioned, "hdm05_matching"},
+                                    {"hdm05_layout_60", "hdm05_matching"},
+                                    {"hdm05_layout_60_ema", "hdm05_matching"},
+                                    {conditioned, "cmu_matching"},
+                                    {"cmu41_layout_60", "cmu_matching"},
+                                    {conditioned, "pig_matching"},
+                                    {"pig_layout_60", "pig_matching"}});
   const std::string readme = Readme();
   int gaps = 0;
-  for (const auto& row : ReadCsv(testing::SourceDir() / dir /
-                                 "any_layout_claims.csv")) {
+  for (const auto& row :
+       ReadCsv(testing::SourceDir() / dir / "any_layout_claims.csv")) {
     if (row.at("better_test") != "hdm05_matching" ||
         row.at("kind") != "not_behind") {
       continue;
     }
     ++gaps;
-    EXPECT_THAT(readme,
-                MatchesSomewhere(Number(std::stod(row.at("gap")), 2) +
-                                 "\\s+±\\s+" +
-                                 Number(std::stod(row.at("gap_se")), 2)))
+    EXPECT_THAT(
+        readme,
+        MatchesSomewhere(Number(std::stod(row.at("gap")), 2) + "\\s+±\\s+" +
+                         Number(std::stod(row.at("gap_se")), 2)))
         << row.at("claim");
   }
   EXPECT_EQ(gaps, 2) << "item 3's HDM05 claims with the matching decode";
