@@ -136,11 +136,10 @@ void MatchFrameLabels(std::span<const float> probabilities,
   }
   const int n = static_cast<int>(rows.size());
   const int m = std::max(n, static_cast<int>(num_labels));
-  // gain[r][j] = w_ij = log p_ij - log p_i,null; cost = -max(w, 0), and the
-  // columns past num_labels (when points outnumber labels) cost 0. A
-  // maximum-weight matching over the pairs with w > 0 is a minimum-cost
-  // perfect assignment of this matrix with its w <= 0 pairs dropped.
-  std::vector<double> gain(static_cast<size_t>(n) * num_labels);
+  // cost = -max(w_ij, 0) with w_ij = log p_ij - log p_i,null, and the columns
+  // past num_labels (when points outnumber labels) cost 0. A maximum-weight
+  // matching over the pairs with w > 0 is a minimum-cost perfect assignment
+  // of this matrix with its zero-cost (w <= 0) pairs dropped.
   std::vector<double> cost(static_cast<size_t>(n) * m, 0.0);
   for (int r = 0; r < n; ++r) {
     const float* row = probabilities.data() + rows[r] * width;
@@ -149,15 +148,13 @@ void MatchFrameLabels(std::span<const float> probabilities,
     for (int64_t j = 0; j < num_labels; ++j) {
       const double w =
           std::log(std::max<double>(row[j], kMinProbability)) - null_log;
-      gain[static_cast<size_t>(r) * num_labels + j] = w;
       cost[static_cast<size_t>(r) * m + j] = -std::max(w, 0.0);
     }
   }
   const std::vector<int> column_of = MinCostAssignment(cost, n, m);
   for (int r = 0; r < n; ++r) {
     const int j = column_of[r];
-    if (j >= 0 && j < num_labels &&
-        gain[static_cast<size_t>(r) * num_labels + j] > 0.0) {
+    if (j >= 0 && j < num_labels && cost[static_cast<size_t>(r) * m + j] < 0) {
       labels[rows[r]] = j;
     }
   }

@@ -161,36 +161,27 @@ torch::Tensor DecodeRows(int64_t batch) {
   return logits.softmax(-1);
 }
 
-/// task.inference.decode=argmax: argmax per row, duplicates -> null.
-void BM_DecodeArgmax(benchmark::State& state) {
+/// task.inference.decode: argmax per row with duplicates -> null, or the
+/// one-to-one matching (the Hungarian method per frame).
+void BM_Decode(benchmark::State& state, LabelDecode decode) {
   at::set_num_threads(1);
   const torch::Tensor rows = DecodeRows(state.range(0));
   const torch::Tensor valid =
       torch::ones({state.range(0), kNumPoints}, torch::kBool);
   for (auto _ : state) {
     benchmark::DoNotOptimize(
-        ResolveDuplicateLabels(rows.argmax(-1), valid, kNumLabels));
+        decode == LabelDecode::kMatching
+            ? MatchLabels(rows, valid)
+            : ResolveDuplicateLabels(rows.argmax(-1), valid, kNumLabels));
   }
   state.SetItemsProcessed(state.iterations() * state.range(0));
 }
-BENCHMARK(BM_DecodeArgmax)
+BENCHMARK_CAPTURE(BM_Decode, argmax, LabelDecode::kArgmax)
     ->ArgName("batch")
     ->Arg(512)
     ->Unit(benchmark::kMillisecond)
     ->UseRealTime();
-
-/// task.inference.decode=matching: the Hungarian method per frame.
-void BM_DecodeMatching(benchmark::State& state) {
-  at::set_num_threads(1);
-  const torch::Tensor rows = DecodeRows(state.range(0));
-  const torch::Tensor valid =
-      torch::ones({state.range(0), kNumPoints}, torch::kBool);
-  for (auto _ : state) {
-    benchmark::DoNotOptimize(MatchLabels(rows, valid));
-  }
-  state.SetItemsProcessed(state.iterations() * state.range(0));
-}
-BENCHMARK(BM_DecodeMatching)
+BENCHMARK_CAPTURE(BM_Decode, matching, LabelDecode::kMatching)
     ->ArgName("batch")
     ->Arg(512)
     ->Unit(benchmark::kMillisecond)
