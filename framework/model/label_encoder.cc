@@ -52,6 +52,24 @@ void LabelEncoderOptions::Validate() const {
             fourier_bands,
             fmt::format("0 <= fourier_bands <= {}", kMaxFourierBands));
   }
+  if (relative_bias < 0) {
+    Invalid("relative_bias", relative_bias, "relative_bias >= 0");
+  }
+}
+
+torch::Tensor RelativeOffsets(const torch::Tensor& descriptors) {
+  SOMA_CHECK(descriptors.dim() == 3 && descriptors.size(2) >= 3)
+      << "RelativeOffsets: descriptors must be B x L x Q with Q >= 3, got "
+      << descriptors.sizes();
+  const torch::Tensor p = descriptors.narrow(2, 0, 3);
+  const torch::Tensor offset =
+      (p.unsqueeze(1) - p.unsqueeze(2)) / kRelativeOffsetScale;  // B L L 3
+  // The norm's gradient at a zero offset (the diagonal) is undefined under
+  // autograd (0/0); sqrt(|d|^2 + eps) keeps it finite and differs from the
+  // norm by under 1e-6 beyond 1e-3 (about 0.1 mm).
+  const torch::Tensor length =
+      (offset.square().sum(-1, /*keepdim=*/true) + 1e-12).sqrt();
+  return torch::cat({offset, length}, -1);
 }
 
 LabelSlots GatherLabelSlots(const LabeledFrames& frames,
@@ -302,7 +320,8 @@ torch::Tensor WeightedBatchNorm(torch::nn::BatchNorm1dImpl& bn,
 torch::Tensor MaskedAttentionUpdate(MultiHeadAttentionImpl& layer,
                                     const torch::Tensor& x,
                                     const torch::Tensor& key_mask,
-                                    const torch::Tensor& weights) {
+                                    const torch::Tensor& weights,
+                                    const torch::Tensor& logit_bias) {
   const int64_t batch = x.size(0);
   const int64_t d_model = layer.d_model();
   const int64_t heads = layer.num_heads();
@@ -316,6 +335,7 @@ torch::Tensor MaskedAttentionUpdate(MultiHeadAttentionImpl& layer,
   const torch::Tensor v = split(layer.value(x)).permute({0, 2, 3, 1});
   torch::Tensor scores = torch::matmul(q, k) /
                          std::sqrt(static_cast<double>(head_dim));  // B h L L
+  if (logit_bias.defined()) scores = scores + logit_bias;
   // Query i sees key j when j is a label, or j == i.
   const torch::Tensor eye = torch::eye(
       tokens, torch::TensorOptions().dtype(torch::kBool).device(x.device()));
@@ -348,6 +368,23 @@ LabelEncoderImpl::LabelEncoderImpl(const LabelEncoderOptions& options)
     list->push_back(layers.back());
   }
   register_module("self_attention_layers", list);
+  if (options_.relative_bias > 0) {
+    torch::nn::ModuleList mlps;
+    for (int64_t i = 0; i < options_.num_layers; ++i) {
+      torch::nn::Linear last(options_.relative_bias, options_.num_heads);
+      {
+        torch::NoGradGuard no_grad;
+        last->weight.zero_();
+        last->bias.zero_();
+      }
+      relative.push_back(
+          torch::nn::Sequential(torch::nn::Linear(4, options_.relative_bias),
+                                torch::nn::ReLU(),
+                                last));
+      mlps->push_back(relative.back());
+    }
+    register_module("relative_bias", mlps);
+  }
 }
 
 torch::Tensor LabelEncoderImpl::forward(const torch::Tensor& descriptors,
@@ -362,8 +399,14 @@ torch::Tensor LabelEncoderImpl::forward(const torch::Tensor& descriptors,
       output(torch::relu(input(WithFourierFeatures(q, options_.fourier_bands))))
           .transpose(1, 2)
           .contiguous();  // B D L
-  for (MultiHeadAttention& layer : layers) {
-    x = x + MaskedAttentionUpdate(*layer, x, mask, weights);
+  const torch::Tensor offsets =
+      relative.empty() ? torch::Tensor() : RelativeOffsets(q);  // B L L 4
+  for (size_t i = 0; i < layers.size(); ++i) {
+    const torch::Tensor bias =
+        relative.empty()
+            ? torch::Tensor()
+            : relative[i]->forward(offsets).permute({0, 3, 1, 2});  // B h L L
+    x = x + MaskedAttentionUpdate(*layers[i], x, mask, weights, bias);
   }
   return x;
 }

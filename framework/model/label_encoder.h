@@ -7,7 +7,9 @@
 //                         rest position] -> MLP (Q + 6F -> hidden -> D) -> k_l
 //                         masked self-attention layers over the L label
 //                         tokens (the MultiHeadAttention layers of the point
-//                         backbone, no positional input) -> E (B x D x L).
+//                         backbone, no positional input; optionally a bias of
+//                         each attention logit from the two labels' rest
+//                         offset) -> E (B x D x L).
 //   ConditionedScoreHead  S = exp(log_scale) (F' W_p)(E W_l)^T / sqrt(D)
 //                         (B x N x L), F' = ReLU(ResConv1DBlock(D->2D)(ReLU
 //                         F)) as in ScoreHead; padded label slots get
@@ -27,6 +29,7 @@
 #include "framework/model/layers.h"
 
 #include <torch/nn/module.h>
+#include <torch/nn/modules/container/sequential.h>
 #include <torch/nn/modules/linear.h>
 #include <torch/nn/pimpl.h>
 
@@ -50,6 +53,13 @@ struct LabelEncoderOptions {
   /// more inputs; periods from 2 body heights down to 2^(2-F)), so that
   /// labels a few centimetres apart get separable embeddings. 0 = none.
   int64_t fourier_bands = 0;
+  /// R: each label self-attention layer adds to the logit of query label i
+  /// and key label j, per head, an MLP (4 -> R -> heads, ReLU) of their rest
+  /// offset RelativeOffsets(p)_ij, so that a label's embedding can say where
+  /// its neighbours sit (the ankle 7 cm below the shin marker) rather than
+  /// leave it to dot products of absolute positions. The MLP's last layer
+  /// starts at zero (plain attention). 0 = none.
+  int64_t relative_bias = 0;
   void Validate() const;  // ConfigError on violation
   /// The MLP's input width: descriptor_width + 6 * fourier_bands.
   int64_t InputWidth() const { return descriptor_width + 6 * fourier_bands; }
@@ -65,6 +75,16 @@ inline constexpr int64_t kMaxFourierBands = 16;
 /// Returns `descriptors` itself when `bands` is 0.
 torch::Tensor WithFourierFeatures(const torch::Tensor& descriptors,
                                   int64_t bands);
+
+/// Length unit of RelativeOffsets, in body heights (~8.5 cm on a 1.7 m
+/// body): the spacing of neighbouring markers, so that the MLP's inputs are
+/// of order 1 between neighbours.
+inline constexpr double kRelativeOffsetScale = 0.05;
+
+/// `descriptors` `B x L x Q` -> `B x L x L x 4`: entry (b, i, j) holds
+/// (p_j - p_i) / s and |p_j - p_i| / s, p = columns 0-2 (the rest position,
+/// body frame / height), s = kRelativeOffsetScale.
+torch::Tensor RelativeOffsets(const torch::Tensor& descriptors);
 
 /// The label slots of a batch: `descriptors` `B x L x Q` float (or `1 x L x
 /// Q`, shared by every frame), `mask` `B x L` (or `1 x L`) bool, true where
@@ -137,7 +157,8 @@ torch::Tensor MaskedAttentionUpdate(MultiHeadAttentionImpl& layer,
                                     const torch::Tensor& weights = {});
 
 /// Label descriptors -> label embeddings. Children: `mlp.{0,2}` (Linear),
-/// `self_attention_layers.{i}` (MultiHeadAttention).
+/// `self_attention_layers.{i}` (MultiHeadAttention), and with
+/// `relative_bias` > 0 `relative_bias.{i}.{0,2}` (Linear 4 -> R -> heads).
 class LabelEncoderImpl : public torch::nn::Module {
  public:
   explicit LabelEncoderImpl(const LabelEncoderOptions& options);
@@ -159,6 +180,9 @@ class LabelEncoderImpl : public torch::nn::Module {
   torch::nn::Linear input{nullptr};   // Q + 6F -> hidden
   torch::nn::Linear output{nullptr};  // hidden -> D
   std::vector<MultiHeadAttention> layers;
+  /// Per layer, the MLP of the rest offsets to the heads' logit biases
+  /// (empty when `relative_bias` is 0).
+  std::vector<torch::nn::Sequential> relative;
 
  private:
   LabelEncoderOptions options_;

@@ -394,6 +394,7 @@ void RegisterModelSpecs() {
           label_reader.Read("num_layers", &label.num_layers);
           label_reader.Read("num_heads", &label.num_heads);
           label_reader.Read("fourier_bands", &label.fourier_bands);
+          label_reader.Read("relative_bias", &label.relative_bias);
           label_reader.Check("num_joints", num_joints > 0, "num_joints > 0");
           label_reader.Check("hidden", label.hidden > 0, "hidden > 0");
           label_reader.Check(
@@ -407,6 +408,8 @@ void RegisterModelSpecs() {
               label.fourier_bands >= 0 &&
                   label.fourier_bands <= kMaxFourierBands,
               fmt::format("0 <= fourier_bands <= {}", kMaxFourierBands));
+          label_reader.Check(
+              "relative_bias", label.relative_bias >= 0, "relative_bias >= 0");
           label_reader.Finish();
         }
         label.d_model = options.d_model;

@@ -133,6 +133,7 @@ struct AddedModelKey {
 /// existed whose model is the configured one.
 constexpr AddedModelKey kAddedModelKeys[] = {
     {"model.label_encoder", "fourier_bands", 0},  // issue #25, 1917811
+    {"model.label_encoder", "relative_bias", 0},  // issue #25
 };
 
 void FillAddedModelKeys(ConfigNode* model_config) {

@@ -2,7 +2,9 @@
 // tests: d_model 12, 2 self-attention layers of 3 heads, a label encoder of 2
 // layers, descriptors of a 24-joint body, Sinkhorn with `num_iters`, and the
 // position loss weighted by `position_loss`, `cross_layers` point-label
-// attention layers.
+// attention layers, and rest-offset logit biases of hidden width
+// `relative_bias` in the label encoder (their last layers drawn at random:
+// as built they are zero, which would leave them untested).
 #pragma once
 
 #include "framework/model/label_encoder.h"
@@ -20,7 +22,8 @@ inline constexpr int64_t kConditionedDescriptorWidth = 3 + 3 + 1 + 24 + 4;
 inline Labeler SmallConditionedLabeler(int64_t num_labels,
                                        int num_iters = 35,
                                        double position_loss = 0.0,
-                                       int64_t cross_layers = 0) {
+                                       int64_t cross_layers = 0,
+                                       int64_t relative_bias = 0) {
   LabelerOptions options;
   options.position_loss = position_loss;
   options.cross_layers = cross_layers;
@@ -33,14 +36,20 @@ inline Labeler SmallConditionedLabeler(int64_t num_labels,
   options.label_encoder.hidden = 10;
   options.label_encoder.num_layers = 2;
   options.label_encoder.num_heads = 3;
+  options.label_encoder.relative_bias = relative_bias;
   SelfAttentionOptions attention;
   attention.d_model = 12;
   attention.num_layers = 2;
   attention.num_heads = 3;
   SinkhornOptions sinkhorn;
   sinkhorn.num_iters = num_iters;
-  return Labeler(
+  Labeler model(
       options, SelfAttention(attention).ptr(), Sinkhorn(sinkhorn).ptr());
+  torch::NoGradGuard no_grad;
+  for (torch::nn::Sequential& mlp : model->label_encoder->relative) {
+    for (torch::Tensor& p : mlp->parameters()) p.normal_(0.0, 0.5);
+  }
+  return model;
 }
 
 }  // namespace soma::testing

@@ -89,6 +89,75 @@ TEST(LabelEncoder, FourierFeaturesOfTheRestPosition) {
   EXPECT_THROW(LabelEncoder{options}, ConfigError);
 }
 
+TEST(LabelEncoder, RelativeOffsetsOfTheRestPositions) {
+  torch::Tensor q = torch::randn({1, 3, kWidth}, torch::kDouble);
+  q.narrow(-1, 0, 3).zero_();
+  q[0][1][0] = kRelativeOffsetScale;       // label 1: one unit along x
+  q[0][2][1] = -2 * kRelativeOffsetScale;  // label 2: two units down y
+  const torch::Tensor r = RelativeOffsets(q);
+  ASSERT_EQ(r.sizes(), (std::vector<int64_t>{1, 3, 3, 4}));
+  auto expect_row = [&](int64_t i, int64_t j, std::vector<double> want) {
+    for (int64_t c = 0; c < 4; ++c) {
+      EXPECT_NEAR(r[0][i][j][c].item<double>(), want[c], 2e-6)
+          << i << " " << j << " " << c;
+    }
+  };
+  expect_row(0, 1, {1, 0, 0, 1});  // p_1 - p_0
+  expect_row(1, 0, {-1, 0, 0, 1});
+  expect_row(1, 2, {-1, -2, 0, std::sqrt(5.0)});
+  expect_row(2, 1, {1, 2, 0, std::sqrt(5.0)});
+  expect_row(1, 1, {0, 0, 0, 0});
+  // Only the position enters.
+  torch::Tensor other = q.clone();
+  other.narrow(-1, 3, kWidth - 3).normal_();
+  EXPECT_TRUE(torch::equal(RelativeOffsets(other), r));
+  // Translating the whole layout changes nothing.
+  torch::Tensor moved = q.clone();
+  moved.narrow(-1, 0, 3).add_(0.3);
+  EXPECT_TRUE(torch::allclose(RelativeOffsets(moved), r, 1e-9, 1e-9));
+}
+
+// As built, the rest-offset biases are zero: the encoder is the plain one
+// with the same weights. Once they are not, they move the embeddings.
+TEST(LabelEncoder, RelativeBiasStartsAsPlainAttention) {
+  torch::manual_seed(21);
+  LabelEncoderOptions options;
+  options.descriptor_width = kWidth;
+  options.d_model = 12;
+  options.hidden = 10;
+  options.num_layers = 2;
+  options.num_heads = 3;
+  LabelEncoder plain(options);
+  options.relative_bias = 6;
+  LabelEncoder biased(options);
+  ASSERT_EQ(biased->relative.size(), 2u);
+  EXPECT_EQ(biased->parameters().size(), plain->parameters().size() + 8);
+  {
+    torch::NoGradGuard no_grad;
+    auto target = biased->named_parameters();
+    for (const auto& item : plain->named_parameters()) {
+      target[item.key()].copy_(item.value());
+    }
+  }
+  plain->eval();
+  biased->eval();
+  const torch::Tensor q = torch::randn({2, 6, kWidth});
+  torch::Tensor mask = torch::ones({2, 6}, torch::kBool);
+  mask.index_put_({1, 5}, false);
+  torch::NoGradGuard no_grad;
+  const torch::Tensor a = plain->forward(q, mask);
+  EXPECT_TRUE(torch::allclose(biased->forward(q, mask), a, 1e-6, 1e-6));
+  biased->relative[1]->parameters().back().fill_(2.0);  // a head's bias
+  biased->relative[1]->parameters()[2].normal_();       // last weight
+  const torch::Tensor b = biased->forward(q, mask);
+  EXPECT_GT((b - a).abs().max().item<double>(), 1e-3);
+  // A bias equal for every key of a query is no bias (softmax shift).
+  biased->relative[1]->parameters()[2].zero_();
+  EXPECT_TRUE(torch::allclose(biased->forward(q, mask), a, 1e-6, 1e-6));
+  options.relative_bias = -1;
+  EXPECT_THROW(LabelEncoder{options}, ConfigError);
+}
+
 // A batch as training sees it: two layouts, each several times in its own
 // slot order and padding, a padded slot holding garbage, a frame of one
 // layout only. Frames 0, 1, 3 hold set A (5 labels), frame 2 set B (3
@@ -178,7 +247,10 @@ TEST(LabelEncoder, CompactSlotsHoldEachDistinctLabelSetOnce) {
 // The label encoder over the distinct sets, gathered back, is the encoder
 // over the batch: embeddings, running statistics and gradients, in
 // training (batch statistics over the weighted tokens) and evaluation.
-TEST(LabelEncoder, EncodingTheDistinctSetsIsEncodingTheBatch) {
+// Without and with the rest-offset logit biases.
+class EncodingTheDistinctSets : public ::testing::TestWithParam<int64_t> {};
+
+TEST_P(EncodingTheDistinctSets, IsEncodingTheBatch) {
   torch::manual_seed(12);
   LabelEncoderOptions options;
   options.descriptor_width = kWidth;
@@ -187,8 +259,15 @@ TEST(LabelEncoder, EncodingTheDistinctSetsIsEncodingTheBatch) {
   options.num_layers = 2;
   options.num_heads = 3;
   options.fourier_bands = 2;
+  options.relative_bias = GetParam();
   LabelEncoder encoder(options);
   encoder->to(torch::kDouble);
+  {
+    torch::NoGradGuard no_grad;  // as built they are zero: draw them
+    for (torch::nn::Sequential& mlp : encoder->relative) {
+      for (torch::Tensor& p : mlp->parameters()) p.normal_(0.0, 0.5);
+    }
+  }
   const RepeatedLayouts r = MakeRepeatedLayouts(torch::kDouble);
   const torch::Tensor upstream = torch::randn({5, 12, 7}, torch::kDouble);
   const std::vector<torch::Tensor> initial_buffers = [&] {
@@ -250,6 +329,10 @@ TEST(LabelEncoder, EncodingTheDistinctSetsIsEncodingTheBatch) {
   }
 }
 
+INSTANTIATE_TEST_SUITE_P(LabelEncoder,
+                         EncodingTheDistinctSets,
+                         ::testing::Values(int64_t{0}, int64_t{6}));
+
 TEST(ConditionedLabeler, OutputShapes) {
   torch::manual_seed(1);
   Labeler model = SmallConditionedLabeler(6);
@@ -279,9 +362,9 @@ TEST(ConditionedLabeler, OutputShapes) {
       ShapeError);  // float mask
 }
 
-TEST(ConditionedLabeler, PermutingTheLayoutPermutesTheColumns) {
-  torch::manual_seed(2);
-  Labeler model = SmallConditionedLabeler(7);
+// Permuting the slots of a layout permutes the score columns, in
+// evaluation and in training.
+void ExpectPermutationEquivariant(Labeler& model) {
   torch::NoGradGuard no_grad;
   for (const bool training : {false, true}) {
     model->train(training);
@@ -303,6 +386,15 @@ TEST(ConditionedLabeler, PermutingTheLayoutPermutesTheColumns) {
     const torch::Tensor inverse = torch::argsort(cols);
     EXPECT_TRUE(torch::equal(inverse.index({a.label_ids}), b.label_ids))
         << "training=" << training;
+  }
+}
+
+TEST(ConditionedLabeler, PermutingTheLayoutPermutesTheColumns) {
+  torch::manual_seed(2);
+  for (const int64_t relative_bias : {0, 6}) {
+    Labeler model = SmallConditionedLabeler(
+        7, 35, /*position_loss=*/0.0, /*cross_layers=*/0, relative_bias);
+    ExpectPermutationEquivariant(model);
   }
 }
 
@@ -352,9 +444,17 @@ TEST(ConditionedLabeler, PaddedSlotsGetNoAssignmentAndDoNotMatter) {
 // Central finite differences of a scalar function of the labeller's output
 // against autograd, in float64, for descriptor entries and label-branch
 // parameters.
-TEST(ConditionedLabeler, LabelBranchGradientsMatchFiniteDifferences) {
+// Without and with the rest-offset logit biases in the label encoder.
+class LabelBranchGradients : public ::testing::TestWithParam<int64_t> {};
+
+TEST_P(LabelBranchGradients, MatchFiniteDifferences) {
   torch::manual_seed(4);
-  Labeler model = SmallConditionedLabeler(5, /*num_iters=*/10);
+  const int64_t relative_bias = GetParam();
+  Labeler model = SmallConditionedLabeler(5,
+                                          /*num_iters=*/10,
+                                          /*position_loss=*/0.0,
+                                          /*cross_layers=*/0,
+                                          relative_bias);
   model->to(torch::kDouble);
   model->eval();  // BatchNorm on running statistics: a fixed function
   const torch::Tensor points = torch::randn({2, 7, 3}, torch::kDouble) * 0.5;
@@ -392,18 +492,27 @@ TEST(ConditionedLabeler, LabelBranchGradientsMatchFiniteDifferences) {
   // The padded slot's descriptor has no gradient.
   EXPECT_EQ(grad_q[1][4].abs().max().item<double>(), 0.0);
   // d/dparameters of the label branch.
-  for (const std::string name :
-       {"label_encoder.mlp.0.weight",
-        "label_encoder.self_attention_layers.1.proj.1.weight",
-        "label_head.label_proj.weight",
-        "label_head.point_proj.bias",
-        "label_head.log_scale"}) {
+  std::vector<std::string> names = {
+      "label_encoder.mlp.0.weight",
+      "label_encoder.self_attention_layers.1.proj.1.weight",
+      "label_head.label_proj.weight",
+      "label_head.point_proj.bias",
+      "label_head.log_scale"};
+  if (relative_bias > 0) {
+    names.push_back("label_encoder.relative_bias.0.0.weight");
+    names.push_back("label_encoder.relative_bias.1.2.weight");
+  }
+  for (const std::string& name : names) {
     torch::Tensor param = model->named_parameters()[name];
     ASSERT_TRUE(param.defined()) << name;
     model->zero_grad();
     objective(q).backward();
     const torch::Tensor grad = param.grad().clone().reshape({-1});
-    const int64_t index = param.numel() / 2;
+    // A hidden unit of the small bias MLPs may be off for every pair: check
+    // their entry of largest gradient.
+    const int64_t index = name.find("relative_bias") != std::string::npos
+                              ? grad.abs().argmax().item<int64_t>()
+                              : param.numel() / 2;
     torch::NoGradGuard no_grad;
     torch::Tensor flat = param.view({-1});
     const double saved = flat[index].item<double>();
@@ -419,8 +528,12 @@ TEST(ConditionedLabeler, LabelBranchGradientsMatchFiniteDifferences) {
     EXPECT_NE(fd, 0.0) << name;  // the check can fail: the entry matters
     ++checked;
   }
-  EXPECT_EQ(checked, 10);
+  EXPECT_EQ(checked, relative_bias > 0 ? 12 : 10);
 }
+
+INSTANTIATE_TEST_SUITE_P(ConditionedLabeler,
+                         LabelBranchGradients,
+                         ::testing::Values(int64_t{0}, int64_t{6}));
 
 TEST(ConditionedLabeler, StoredLayoutIsTheDefaultSlots) {
   torch::manual_seed(5);
