@@ -752,6 +752,23 @@ TEST(BuildLabeler, SomaAnyLayoutFromConfig) {
   EXPECT_EQ(CountTrainableParameters(*BuildLabeler(fourier, norm, 6)),
             CountTrainableParameters(*labeler) +
                 24 * model.at("label_encoder").at("hidden").AsInt());
+  // Rest-offset biases: per label self-attention layer an MLP 4 -> R ->
+  // heads; a negative width is a one-line error.
+  ConfigNode relative = model;
+  relative.SetPath("label_encoder.relative_bias", ConfigNode(int64_t{8}));
+  const int64_t heads = model.at("label_encoder").at("num_heads").AsInt();
+  const int64_t label_layers =
+      model.at("label_encoder").at("num_layers").AsInt();
+  EXPECT_EQ(CountTrainableParameters(*BuildLabeler(relative, norm, 6)),
+            CountTrainableParameters(*labeler) +
+                label_layers * (4 * 8 + 8 + 8 * heads + heads));
+  bad = model;
+  bad.SetPath("label_encoder.relative_bias", ConfigNode(int64_t{-1}));
+  const std::string relative_message =
+      testing::ErrorMessage<ConfigError>([&] { BuildLabeler(bad, norm, 6); });
+  EXPECT_NE(relative_message.find("relative_bias"), std::string::npos)
+      << relative_message;
+  EXPECT_EQ(relative_message.find('\n'), std::string::npos) << relative_message;
   // The position loss adds a linear map of the point keys to 3 coordinates,
   // and only when it is weighted; a negative weight is a one-line error.
   ConfigNode position = model;

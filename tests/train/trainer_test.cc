@@ -548,12 +548,14 @@ TEST_F(TrainerTest, ConditionedModelFineTunesOnAnotherLayout) {
   EXPECT_TRUE(std::isfinite(summary.history.back().val_loss));
 
   // A checkpoint written before a model key existed (the pre-training's
-  // config has no label_encoder.fourier_bands) starts a model that states
-  // the value every earlier model had, and not one that differs.
+  // config has no label_encoder.fourier_bands or relative_bias) starts a
+  // model that states the value every earlier model had, and not one that
+  // differs.
   TrainerOptions load_only = options;
   load_only.max_epochs = 0;
   ConfigNode explicit_bands = ConditionedConfig();
   explicit_bands.at("model").at("label_encoder").Set("fourier_bands", 0);
+  explicit_bands.at("model").at("label_encoder").Set("relative_bias", 0);
   auto stated =
       MakeTrainer(load_only, root_ / "ft_bands", explicit_bands, Labels());
   Labeler stated_model = stated->model();
