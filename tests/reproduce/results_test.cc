@@ -597,6 +597,36 @@ TEST(ResultsTest, ReadmeQuotesTheMatchingDecodeAsItsReportSaysIt) {
   EXPECT_EQ(gaps, 2) << "item 3's HDM05 claims with the matching decode";
 }
 
+// The rest-offset logit biases (results/any_layout_relative/): the README
+// quotes the biased model on each take (HDM05 with both decodes) and its
+// HDM05 gap to the averaged per-layout model, both decodes matching.
+TEST(ResultsTest, ReadmeQuotesTheRestOffsetBiasAsItsReportSaysIt) {
+  const std::string dir = "results/any_layout_relative/";
+  const std::string relative = "any_layout_perturbed8r_fourier_rel_ema_60";
+  ExpectReadmeQuotesBoldAccuracies(dir + "any_layout.csv",
+                                   {{relative, "hdm05"},
+                                    {relative, "hdm05_matching"},
+                                    {relative, "cmu_matching"},
+                                    {relative, "pig_matching"}});
+  const std::string readme = Readme();
+  int gaps = 0;
+  for (const auto& row :
+       ReadCsv(testing::SourceDir() / dir / "any_layout_claims.csv")) {
+    const bool names_it =
+        row.at("better") == relative || row.at("worse") == relative;
+    if (!names_it || row.at("better_test") != "hdm05_matching") {
+      continue;
+    }
+    ++gaps;
+    EXPECT_THAT(
+        readme,
+        MatchesSomewhere(Number(std::abs(std::stod(row.at("gap"))), 2) +
+                         "\\s+±\\s+" + Number(std::stod(row.at("gap_se")), 2)))
+        << row.at("claim");
+  }
+  EXPECT_EQ(gaps, 2) << "the biased model's two HDM05 claims";
+}
+
 TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
   const std::string readme = ResultsReadme();
   for (const std::string dir :
