@@ -35,6 +35,18 @@ ConfigNode LoadConfig(const std::string& relative) {
   return LoadConfigFile(testing::SourceDir() / "configs" / relative).content;
 }
 
+/// The label encoder of SmallConditionedLabeler: width 12, MLP hidden 10,
+/// 2 layers of 3 heads.
+LabelEncoderOptions SmallEncoderOptions() {
+  LabelEncoderOptions options;
+  options.descriptor_width = kWidth;
+  options.d_model = 12;
+  options.hidden = 10;
+  options.num_layers = 2;
+  options.num_heads = 3;
+  return options;
+}
+
 torch::Tensor RandomDescriptors(int64_t batch, int64_t labels) {
   return torch::randn({batch, labels, kWidth});
 }
@@ -121,12 +133,7 @@ TEST(LabelEncoder, RelativeOffsetsOfTheRestPositions) {
 // with the same weights. Once they are not, they move the embeddings.
 TEST(LabelEncoder, RelativeBiasStartsAsPlainAttention) {
   torch::manual_seed(21);
-  LabelEncoderOptions options;
-  options.descriptor_width = kWidth;
-  options.d_model = 12;
-  options.hidden = 10;
-  options.num_layers = 2;
-  options.num_heads = 3;
+  LabelEncoderOptions options = SmallEncoderOptions();
   LabelEncoder plain(options);
   options.relative_bias = 6;
   LabelEncoder biased(options);
@@ -252,12 +259,7 @@ class EncodingTheDistinctSets : public ::testing::TestWithParam<int64_t> {};
 
 TEST_P(EncodingTheDistinctSets, IsEncodingTheBatch) {
   torch::manual_seed(12);
-  LabelEncoderOptions options;
-  options.descriptor_width = kWidth;
-  options.d_model = 12;
-  options.hidden = 10;
-  options.num_layers = 2;
-  options.num_heads = 3;
+  LabelEncoderOptions options = SmallEncoderOptions();
   options.fourier_bands = 2;
   options.relative_bias = GetParam();
   LabelEncoder encoder(options);
