@@ -150,11 +150,14 @@ CompactSlots CompactLabelSlots(const LabelSlots& slots);
 /// (false keys get no attention; a token always sees itself, so that a
 /// padded token's softmax is defined). `weights` `B x L` (undefined: 1
 /// each): in training, the batch norm's statistics weigh token (b, l) by
-/// it (CompactSlots). Returns the `B x D x L` update.
+/// it (CompactSlots). `logit_bias` `B x h x L x L` (undefined: none) is
+/// added to the attention logits before the mask (LabelEncoderOptions::
+/// relative_bias). Returns the `B x D x L` update.
 torch::Tensor MaskedAttentionUpdate(MultiHeadAttentionImpl& layer,
                                     const torch::Tensor& x,
                                     const torch::Tensor& key_mask,
-                                    const torch::Tensor& weights = {});
+                                    const torch::Tensor& weights = {},
+                                    const torch::Tensor& logit_bias = {});
 
 /// Label descriptors -> label embeddings. Children: `mlp.{0,2}` (Linear),
 /// `self_attention_layers.{i}` (MultiHeadAttention), and with
