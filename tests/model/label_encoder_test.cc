@@ -154,7 +154,7 @@ TEST(LabelEncoder, RelativeBiasStartsAsPlainAttention) {
   torch::NoGradGuard no_grad;
   const torch::Tensor a = plain->forward(q, mask);
   EXPECT_TRUE(torch::allclose(biased->forward(q, mask), a, 1e-6, 1e-6));
-  biased->relative[1]->parameters().back().fill_(2.0);  // a head's bias
+  biased->relative[1]->parameters().back().fill_(2.0);  // every head: 2
   biased->relative[1]->parameters()[2].normal_();       // last weight
   const torch::Tensor b = biased->forward(q, mask);
   EXPECT_GT((b - a).abs().max().item<double>(), 1e-3);
