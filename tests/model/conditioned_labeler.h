@@ -16,6 +16,16 @@
 
 namespace soma::testing {
 
+/// Draws the rest-offset bias MLPs' parameters (LabelEncoderImpl::relative)
+/// from N(0, 0.5^2): as built their last layers are zero, which would leave
+/// the biases untested.
+inline void DrawRelativeBiases(LabelEncoderImpl& encoder) {
+  torch::NoGradGuard no_grad;
+  for (torch::nn::Sequential& mlp : encoder.relative) {
+    for (torch::Tensor& p : mlp->parameters()) p.normal_(0.0, 0.5);
+  }
+}
+
 /// Q of LabelDescriptorWidth(24) (body/vertex_descriptors.h).
 inline constexpr int64_t kConditionedDescriptorWidth = 3 + 3 + 1 + 24 + 4;
 
@@ -45,10 +55,7 @@ inline Labeler SmallConditionedLabeler(int64_t num_labels,
   sinkhorn.num_iters = num_iters;
   Labeler model(
       options, SelfAttention(attention).ptr(), Sinkhorn(sinkhorn).ptr());
-  torch::NoGradGuard no_grad;
-  for (torch::nn::Sequential& mlp : model->label_encoder->relative) {
-    for (torch::Tensor& p : mlp->parameters()) p.normal_(0.0, 0.5);
-  }
+  DrawRelativeBiases(*model->label_encoder);
   return model;
 }
 

@@ -264,12 +264,7 @@ TEST_P(EncodingTheDistinctSets, IsEncodingTheBatch) {
   options.relative_bias = GetParam();
   LabelEncoder encoder(options);
   encoder->to(torch::kDouble);
-  {
-    torch::NoGradGuard no_grad;  // as built they are zero: draw them
-    for (torch::nn::Sequential& mlp : encoder->relative) {
-      for (torch::Tensor& p : mlp->parameters()) p.normal_(0.0, 0.5);
-    }
-  }
+  testing::DrawRelativeBiases(*encoder);  // as built they are zero
   const RepeatedLayouts r = MakeRepeatedLayouts(torch::kDouble);
   const torch::Tensor upstream = torch::randn({5, 12, 7}, torch::kDouble);
   const std::vector<torch::Tensor> initial_buffers = [&] {
@@ -740,13 +735,19 @@ TEST(BuildLabeler, SomaAnyLayoutFromConfig) {
   bad = model;
   bad.SetPath("label_encoder.depth", ConfigNode(int64_t{3}));
   EXPECT_THROW(BuildLabeler(bad, norm, 6), ConfigError);
-  bad = model;
-  bad.SetPath("label_encoder.fourier_bands", ConfigNode(int64_t{-2}));
-  const std::string fourier_message =
-      testing::ErrorMessage<ConfigError>([&] { BuildLabeler(bad, norm, 6); });
-  EXPECT_NE(fourier_message.find("fourier_bands"), std::string::npos)
-      << fourier_message;
-  EXPECT_EQ(fourier_message.find('\n'), std::string::npos) << fourier_message;
+  // `path` set to `value` is a one-line ConfigError naming its key.
+  auto expect_one_line_error = [&](const std::string& path,
+                                   const ConfigNode& value,
+                                   const std::string& key) {
+    ConfigNode invalid = model;
+    invalid.SetPath(path, value);
+    const std::string message = testing::ErrorMessage<ConfigError>(
+        [&] { BuildLabeler(invalid, norm, 6); });
+    EXPECT_NE(message.find(key), std::string::npos) << message;
+    EXPECT_EQ(message.find('\n'), std::string::npos) << message;
+  };
+  expect_one_line_error(
+      "label_encoder.fourier_bands", ConfigNode(int64_t{-2}), "fourier_bands");
   // Fourier features widen the first layer of the descriptor MLP only:
   // 6F more inputs of its `hidden` units.
   ConfigNode fourier = model;
@@ -764,13 +765,8 @@ TEST(BuildLabeler, SomaAnyLayoutFromConfig) {
   EXPECT_EQ(CountTrainableParameters(*BuildLabeler(relative, norm, 6)),
             CountTrainableParameters(*labeler) +
                 label_layers * (4 * 8 + 8 + 8 * heads + heads));
-  bad = model;
-  bad.SetPath("label_encoder.relative_bias", ConfigNode(int64_t{-1}));
-  const std::string relative_message =
-      testing::ErrorMessage<ConfigError>([&] { BuildLabeler(bad, norm, 6); });
-  EXPECT_NE(relative_message.find("relative_bias"), std::string::npos)
-      << relative_message;
-  EXPECT_EQ(relative_message.find('\n'), std::string::npos) << relative_message;
+  expect_one_line_error(
+      "label_encoder.relative_bias", ConfigNode(int64_t{-1}), "relative_bias");
   // The position loss adds a linear map of the point keys to 3 coordinates,
   // and only when it is weighted; a negative weight is a one-line error.
   ConfigNode position = model;
@@ -780,13 +776,7 @@ TEST(BuildLabeler, SomaAnyLayoutFromConfig) {
   EXPECT_EQ(CountTrainableParameters(*positioned),
             CountTrainableParameters(*labeler) + 10 * 3 + 3);
   EXPECT_FALSE(labeler->position_head);
-  bad = model;
-  bad.SetPath("position_loss", ConfigNode(-1.0));
-  const std::string position_message =
-      testing::ErrorMessage<ConfigError>([&] { BuildLabeler(bad, norm, 6); });
-  EXPECT_NE(position_message.find("position_loss"), std::string::npos)
-      << position_message;
-  EXPECT_EQ(position_message.find('\n'), std::string::npos) << position_message;
+  expect_one_line_error("position_loss", ConfigNode(-1.0), "position_loss");
   // Point-label attention layers: 4 convolutions D -> D each.
   ConfigNode cross = model;
   cross.SetPath("cross_layers", ConfigNode(int64_t{2}));
