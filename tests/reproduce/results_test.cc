@@ -346,6 +346,28 @@ void ExpectReadmeQuotesBoldAccuracies(
   }
 }
 
+using CsvRow = std::map<std::string, std::string>;
+
+/// The README quotes each claim of `claims_csv` (relative to the source
+/// directory) that `select` picks as "|gap| ± s.e.", two decimals. Returns
+/// how many claims it checked.
+template <typename Select>
+int ExpectReadmeQuotesClaimGaps(const std::string& claims_csv,
+                                const Select& select) {
+  const std::string readme = Readme();
+  int checked = 0;
+  for (const CsvRow& row : ReadCsv(testing::SourceDir() / claims_csv)) {
+    if (!select(row)) continue;
+    ++checked;
+    EXPECT_THAT(
+        readme,
+        MatchesSomewhere(Number(std::abs(std::stod(row.at("gap"))), 2) +
+                         "\\s+±\\s+" + Number(std::stod(row.at("gap_se")), 2)))
+        << claims_csv << ": " << row.at("claim");
+  }
+  return checked;
+}
+
 /// The (variant, test) cells of every variant on each of the any_layout
 /// spec's three takes.
 std::vector<std::pair<std::string, std::string>> OnEveryAnyLayoutTake(
@@ -579,21 +601,11 @@ TEST(ResultsTest, ReadmeQuotesTheMatchingDecodeAsItsReportSaysIt) {
                                     {"cmu41_layout_60", "cmu_matching"},
                                     {conditioned, "pig_matching"},
                                     {"pig_layout_60", "pig_matching"}});
-  const std::string readme = Readme();
-  int gaps = 0;
-  for (const auto& row :
-       ReadCsv(testing::SourceDir() / dir / "any_layout_claims.csv")) {
-    if (row.at("better_test") != "hdm05_matching" ||
-        row.at("kind") != "not_behind") {
-      continue;
-    }
-    ++gaps;
-    EXPECT_THAT(
-        readme,
-        MatchesSomewhere(Number(std::stod(row.at("gap")), 2) + "\\s+±\\s+" +
-                         Number(std::stod(row.at("gap_se")), 2)))
-        << row.at("claim");
-  }
+  const int gaps = ExpectReadmeQuotesClaimGaps(
+      dir + "any_layout_claims.csv", [](const CsvRow& row) {
+        return row.at("better_test") == "hdm05_matching" &&
+               row.at("kind") == "not_behind";
+      });
   EXPECT_EQ(gaps, 2) << "item 3's HDM05 claims with the matching decode";
 }
 
@@ -608,22 +620,11 @@ TEST(ResultsTest, ReadmeQuotesTheRestOffsetBiasAsItsReportSaysIt) {
                                     {relative, "hdm05_matching"},
                                     {relative, "cmu_matching"},
                                     {relative, "pig_matching"}});
-  const std::string readme = Readme();
-  int gaps = 0;
-  for (const auto& row :
-       ReadCsv(testing::SourceDir() / dir / "any_layout_claims.csv")) {
-    const bool names_it =
-        row.at("better") == relative || row.at("worse") == relative;
-    if (!names_it || row.at("better_test") != "hdm05_matching") {
-      continue;
-    }
-    ++gaps;
-    EXPECT_THAT(
-        readme,
-        MatchesSomewhere(Number(std::abs(std::stod(row.at("gap"))), 2) +
-                         "\\s+±\\s+" + Number(std::stod(row.at("gap_se")), 2)))
-        << row.at("claim");
-  }
+  const int gaps = ExpectReadmeQuotesClaimGaps(
+      dir + "any_layout_claims.csv", [&](const CsvRow& row) {
+        return (row.at("better") == relative || row.at("worse") == relative) &&
+               row.at("better_test") == "hdm05_matching";
+      });
   EXPECT_EQ(gaps, 2) << "the biased model's two HDM05 claims";
 }
 
