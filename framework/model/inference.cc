@@ -11,6 +11,8 @@
 #include <torch/torch.h>
 
 #include <algorithm>
+#include <cmath>
+#include <numbers>
 #include <span>
 #include <string>
 #include <utility>
@@ -24,6 +26,11 @@ void InferenceOptions::Validate() const {
         fmt::format("Invalid configuration. batch_size = {}. Violated "
                     "constraint: batch_size > 0",
                     batch_size));
+  }
+  if (views < 1) {
+    throw ConfigError(fmt::format(
+        "Invalid configuration. views = {}. Violated constraint: views >= 1",
+        views));
   }
 }
 
@@ -41,7 +48,9 @@ InferenceOptions DecodeInferenceOptions(const ConfigNode& node) {
                    decode == ToString(LabelDecode::kMatching),
                "one of argmax, matching");
   options.decode = LabelDecodeFromString(decode);
+  reader.Read("views", &options.views);
   reader.Check("batch_size", options.batch_size > 0, "batch_size > 0");
+  reader.Check("views", options.views >= 1, "views >= 1");
   reader.Finish();
   return options;
 }
@@ -100,6 +109,17 @@ at::Tensor MatchLabels(const at::Tensor& probabilities,
   return labels;
 }
 
+at::Tensor RotateAboutVertical(const at::Tensor& points, double angle) {
+  if (points.dim() < 1 || points.size(-1) != 3) {
+    throw ShapeError(
+        fmt::format("RotateAboutVertical: points must be ... x 3, got {}",
+                    ShapeString(points)));
+  }
+  const double c = std::cos(angle), s = std::sin(angle);
+  const torch::Tensor x = points.select(-1, 0), y = points.select(-1, 1);
+  return torch::stack({x * c - y * s, x * s + y * c, points.select(-1, 2)}, -1);
+}
+
 FrameLabeler::FrameLabeler(std::shared_ptr<LabelerImpl> model,
                            const InferenceOptions& options)
     : model_(std::move(model)), options_(options) {
@@ -142,46 +162,60 @@ FrameLabels FrameLabeler::Label(const at::Tensor& points_in,
   result.label_confidence = torch::empty({frames, p, l + 1}, torch::kFloat);
   result.predicted_ids = torch::empty({frames, p}, torch::kLong);
   const Rng root(options_.seed);
+  const int views = options_.views;
   for (int64_t t0 = 0; t0 < frames; t0 += options_.batch_size) {
     const int64_t t1 = std::min<int64_t>(frames, t0 + options_.batch_size);
-    torch::Tensor batch = points.narrow(0, t0, t1 - t0);
-    torch::Tensor order;  // network slot -> input point, per frame
-    if (options_.permute && p > 1) {
-      std::vector<int64_t> indices;
-      indices.reserve(static_cast<size_t>((t1 - t0) * p));
-      for (int64_t t = t0; t < t1; ++t) {
-        const std::vector<int> perm =
-            root.Stream(static_cast<uint64_t>(first_frame + t))
-                .Permutation(static_cast<int>(p));
-        indices.insert(indices.end(), perm.begin(), perm.end());
-      }
-      order = torch::tensor(indices, torch::kLong).view({t1 - t0, p});
-      batch = batch.gather(1, order.unsqueeze(-1).expand({t1 - t0, p, 3}));
-    }
-    LabelerOutput out;
+    const int64_t b = t1 - t0;
+    LabelSlots frame_slots;
     if (slots != nullptr) {
-      LabelSlots frame_slots;
-      frame_slots.descriptors = slots->descriptors.narrow(0, t0, t1 - t0);
+      frame_slots.descriptors = slots->descriptors.narrow(0, t0, b);
       if (slots->mask.defined()) {
-        frame_slots.mask = slots->mask.narrow(0, t0, t1 - t0);
+        frame_slots.mask = slots->mask.narrow(0, t0, b);
       }
-      out = model_->ForwardSlots(batch, frame_slots);
-    } else {
-      out = fast_ != nullptr ? fast_->Forward(batch) : model_->forward(batch);
     }
-    torch::Tensor confidence = out.label_confidence;
-    torch::Tensor ids = out.label_ids;
-    if (order.defined()) {
-      // Invert: output slot i holds input point order[i].
-      confidence =
-          torch::empty_like(confidence)
-              .scatter_(1,
-                        order.unsqueeze(-1).expand({t1 - t0, p, l + 1}),
-                        confidence);
-      ids = torch::empty_like(ids).scatter_(1, order, ids);
+    torch::Tensor confidence_sum;
+    torch::Tensor ids;
+    for (int view = 0; view < views; ++view) {
+      torch::Tensor batch = points.narrow(0, t0, b);
+      if (view > 0) {
+        batch =
+            RotateAboutVertical(batch, 2.0 * std::numbers::pi * view / views);
+      }
+      torch::Tensor order;  // network slot -> input point, per frame
+      if (options_.permute && p > 1) {
+        std::vector<int64_t> indices;
+        indices.reserve(static_cast<size_t>(b * p));
+        for (int64_t t = t0; t < t1; ++t) {
+          Rng frame = root.Stream(static_cast<uint64_t>(first_frame + t));
+          if (view > 0) frame = frame.Stream(static_cast<uint64_t>(view));
+          const std::vector<int> perm = frame.Permutation(static_cast<int>(p));
+          indices.insert(indices.end(), perm.begin(), perm.end());
+        }
+        order = torch::tensor(indices, torch::kLong).view({b, p});
+        batch = batch.gather(1, order.unsqueeze(-1).expand({b, p, 3}));
+      }
+      const LabelerOutput out = slots != nullptr
+                                    ? model_->ForwardSlots(batch, frame_slots)
+                                : fast_ != nullptr ? fast_->Forward(batch)
+                                                   : model_->forward(batch);
+      torch::Tensor confidence = out.label_confidence;
+      ids = out.label_ids;
+      if (order.defined()) {
+        // Invert: output slot i holds input point order[i].
+        confidence =
+            torch::empty_like(confidence)
+                .scatter_(
+                    1, order.unsqueeze(-1).expand({b, p, l + 1}), confidence);
+        ids = torch::empty_like(ids).scatter_(1, order, ids);
+      }
+      confidence_sum = view == 0 ? confidence : confidence_sum + confidence;
     }
-    result.label_confidence.narrow(0, t0, t1 - t0).copy_(confidence);
-    result.predicted_ids.narrow(0, t0, t1 - t0).copy_(ids);
+    if (views > 1) {
+      confidence_sum.div_(views);
+      ids = confidence_sum.argmax(-1);
+    }
+    result.label_confidence.narrow(0, t0, b).copy_(confidence_sum);
+    result.predicted_ids.narrow(0, t0, b).copy_(ids);
   }
   const torch::Tensor valid = points.ne(0).any(-1);
   result.label_ids =

@@ -39,11 +39,19 @@ struct InferenceOptions {
   bool use_fast_path = true;
   /// How the rows become labels (FrameLabels::label_ids).
   LabelDecode decode = LabelDecode::kArgmax;
+  /// Test-time rotation ensemble: each frame is labelled `views` times,
+  /// view v rotated by 2*pi*v/views about the vertical (Z) axis with its own
+  /// point permutation, and the label distributions are averaged before the
+  /// decode. The network is trained on every rotation about Z (REFERENCE
+  /// 3.2) and centres each frame on its median, so every view is an equally
+  /// valid input; averaging removes part of what one view gets wrong.
+  /// 1 = one view, SOMA's labelling.
+  int views = 1;
   void Validate() const;  // ConfigError on violation
 };
 
-/// Decodes `batch_size`, `permute`, `seed`, `use_fast_path`, `decode`
-/// (unknown keys are an error).
+/// Decodes `batch_size`, `permute`, `seed`, `use_fast_path`, `decode`,
+/// `views` (unknown keys are an error).
 InferenceOptions DecodeInferenceOptions(const ConfigNode& node);
 
 /// Per-point labels of T frames of P points, L labels (null id = L).
@@ -53,10 +61,11 @@ struct FrameLabels {
   /// null.
   at::Tensor label_ids;
   /// `T x P` int64: the network's argmax over the L+1 columns, before the
-  /// duplicate rule (zero points included).
+  /// duplicate rule (zero points included); with several views, the argmax
+  /// of their mean distribution.
   at::Tensor predicted_ids;
   /// `T x P x (L+1)` float: per-point label distribution (exp of A' point
-  /// rows), in the input point order.
+  /// rows, the mean over the views), in the input point order.
   at::Tensor label_confidence;
 };
 
@@ -74,6 +83,10 @@ at::Tensor ResolveDuplicateLabels(const at::Tensor& label_ids,
 at::Tensor MatchLabels(const at::Tensor& probabilities,
                        const at::Tensor& valid);
 
+/// `points` (`... x 3`) rotated by `angle` radians about the Z axis through
+/// the origin (zero points stay zero).
+at::Tensor RotateAboutVertical(const at::Tensor& points, double angle);
+
 /// Batched per-frame inference with a labeler (eval mode, no autograd).
 class FrameLabeler {
  public:
@@ -86,7 +99,8 @@ class FrameLabeler {
   FrameLabeler& operator=(FrameLabeler&&) noexcept;
 
   /// `points`: `T x P x 3` float, (0,0,0) = missing/padding. Frame t is
-  /// permuted with Rng(seed).Stream(first_frame + t): a stream labelling one
+  /// permuted with Rng(seed).Stream(first_frame + t) (view v > 0: its
+  /// .Stream(v)): a stream labelling one
   /// frame per call passes the frame's index to get the permutation of an
   /// offline call over the whole take. `slots` (a conditioned labeler only):
   /// each frame's own label slots, `T x L x Q` (GatherLabelSlots), in place

@@ -9,6 +9,8 @@
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include <numbers>
+#include <string>
 #include <vector>
 
 namespace soma {
@@ -190,6 +192,88 @@ TEST(FrameLabeler, MatchingDecodeIsTheMatchOfTheSameRows) {
                ShapeError);
 }
 
+TEST(RotateAboutVertical, TurnsXYAboutTheOriginAndKeepsZAndZeroPoints) {
+  const torch::Tensor points =
+      torch::tensor({1.0f, 0.0f, 0.5f, 0.0f, 2.0f, -1.0f, 0.0f, 0.0f, 0.0f})
+          .view({1, 3, 3});
+  const torch::Tensor quarter =
+      RotateAboutVertical(points, std::numbers::pi / 2);
+  const torch::Tensor expected =
+      torch::tensor({0.0f, 1.0f, 0.5f, -2.0f, 0.0f, -1.0f, 0.0f, 0.0f, 0.0f})
+          .view({1, 3, 3});
+  EXPECT_TRUE(torch::allclose(quarter, expected, 1e-6, 1e-6));
+  // Distances and heights are kept; a full turn is the identity.
+  const torch::Tensor p = Points(4, 9);
+  const torch::Tensor r = RotateAboutVertical(p, 0.7);
+  EXPECT_TRUE(torch::allclose(r.norm(2, -1), p.norm(2, -1), 1e-5, 1e-6));
+  EXPECT_TRUE(torch::equal(r.select(-1, 2), p.select(-1, 2)));
+  EXPECT_TRUE(torch::allclose(
+      RotateAboutVertical(p, 2 * std::numbers::pi), p, 1e-5, 1e-6));
+  EXPECT_THROW(RotateAboutVertical(torch::zeros({4, 2}), 0.1), ShapeError);
+}
+
+TEST(FrameLabeler, ViewsAverageTheDistributionsOfRotatedFrames) {
+  Labeler model = SmallModel(5);
+  const torch::Tensor points = Points(6, 10);
+  InferenceOptions one;
+  one.permute = false;
+  one.batch_size = 4;  // the views of a batch are averaged batch by batch
+  InferenceOptions three = one;
+  three.views = 3;
+  three.decode = LabelDecode::kMatching;
+  const FrameLabels ensemble = FrameLabeler(model.ptr(), three).Label(points);
+  torch::Tensor mean = torch::zeros({6, 10, 6});
+  for (int view = 0; view < 3; ++view) {
+    mean +=
+        FrameLabeler(model.ptr(), one)
+            .Label(RotateAboutVertical(points, 2 * std::numbers::pi * view / 3))
+            .label_confidence;
+  }
+  mean /= 3;
+  EXPECT_TRUE(torch::allclose(ensemble.label_confidence, mean, 1e-5, 1e-6));
+  EXPECT_TRUE(torch::equal(ensemble.predicted_ids,
+                           ensemble.label_confidence.argmax(-1)));
+  const torch::Tensor valid = points.ne(0).any(-1);
+  EXPECT_TRUE(torch::equal(ensemble.label_ids,
+                           MatchLabels(ensemble.label_confidence, valid)));
+  // The network is not rotation invariant, so the views do differ: the
+  // ensemble is not the first view alone.
+  const FrameLabels first = FrameLabeler(model.ptr(), one).Label(points);
+  EXPECT_GT((ensemble.label_confidence - first.label_confidence)
+                .abs()
+                .max()
+                .item<float>(),
+            1e-3);
+}
+
+TEST(FrameLabeler, OneViewIsTheDefaultAndViewsIgnoreTheBatchSplit) {
+  Labeler model = SmallModel(4);
+  const torch::Tensor points = Points(5, 9);
+  InferenceOptions options;
+  options.seed = 7;
+  // views = 1 is the labelling without the option, bit for bit.
+  InferenceOptions one = options;
+  one.views = 1;
+  const FrameLabels a = FrameLabeler(model.ptr(), options).Label(points);
+  const FrameLabels b = FrameLabeler(model.ptr(), one).Label(points);
+  EXPECT_TRUE(torch::equal(a.label_confidence, b.label_confidence));
+  EXPECT_TRUE(torch::equal(a.label_ids, b.label_ids));
+  // With two views, each frame's views and permutations come from its own
+  // index: neither the batch split nor where the call starts changes them.
+  InferenceOptions two = options;
+  two.views = 2;
+  const FrameLabels c = FrameLabeler(model.ptr(), two).Label(points);
+  InferenceOptions two_batched = two;
+  two_batched.batch_size = 2;
+  const FrameLabels d = FrameLabeler(model.ptr(), two_batched).Label(points);
+  EXPECT_TRUE(
+      torch::allclose(c.label_confidence, d.label_confidence, 1e-6, 1e-7));
+  const FrameLabels tail =
+      FrameLabeler(model.ptr(), two).Label(points.narrow(0, 2, 3), 2);
+  EXPECT_TRUE(torch::allclose(
+      tail.label_confidence, c.label_confidence.narrow(0, 2, 3), 1e-6, 1e-7));
+}
+
 TEST(FrameLabeler, OptionsAndShapes) {
   ConfigNode node = ConfigNode::EmptyMap();
   node.Set("batch_size", ConfigNode(30));
@@ -204,6 +288,22 @@ TEST(FrameLabeler, OptionsAndShapes) {
   node.Set("decode", ConfigNode("hungarian"));
   EXPECT_THROW(DecodeInferenceOptions(node), ConfigError);
   node.Set("decode", ConfigNode("argmax"));
+  EXPECT_EQ(DecodeInferenceOptions(node).views, 1);
+  node.Set("views", ConfigNode(8));
+  EXPECT_EQ(DecodeInferenceOptions(node).views, 8);
+  node.Set("views", ConfigNode(0));
+  try {
+    DecodeInferenceOptions(node);
+    ADD_FAILURE() << "views = 0 was accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("views"), std::string::npos)
+        << e.what();
+    EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
+  }
+  InferenceOptions no_views;
+  no_views.views = 0;
+  EXPECT_THROW(FrameLabeler(SmallModel(2).ptr(), no_views), ConfigError);
+  node.Set("views", ConfigNode(1));
   node.Set("batch_size", ConfigNode(0));
   EXPECT_THROW(DecodeInferenceOptions(node), ConfigError);
   Labeler model = SmallModel(3);
