@@ -137,6 +137,44 @@ FrameLabeler& FrameLabeler::operator=(FrameLabeler&&) noexcept = default;
 
 int64_t FrameLabeler::num_labels() const { return model_->num_labels(); }
 
+std::pair<at::Tensor, at::Tensor> FrameLabeler::LabelView(
+    const at::Tensor& batch_in,
+    int64_t first_frame,
+    int view,
+    const LabelSlots* slots) const {
+  const int64_t b = batch_in.size(0), p = batch_in.size(1);
+  const int64_t width = num_labels() + 1;
+  torch::Tensor batch =
+      view == 0 ? batch_in
+                : RotateAboutVertical(
+                      batch_in, 2.0 * std::numbers::pi * view / options_.views);
+  torch::Tensor order;  // network slot -> input point, per frame
+  if (options_.permute && p > 1) {
+    const Rng root(options_.seed);
+    std::vector<int64_t> indices;
+    indices.reserve(static_cast<size_t>(b * p));
+    for (int64_t t = 0; t < b; ++t) {
+      Rng frame = root.Stream(static_cast<uint64_t>(first_frame + t));
+      if (view > 0) frame = frame.Stream(static_cast<uint64_t>(view));
+      const std::vector<int> perm = frame.Permutation(static_cast<int>(p));
+      indices.insert(indices.end(), perm.begin(), perm.end());
+    }
+    order = torch::tensor(indices, torch::kLong).view({b, p});
+    batch = batch.gather(1, order.unsqueeze(-1).expand({b, p, 3}));
+  }
+  const LabelerOutput out = slots != nullptr
+                                ? model_->ForwardSlots(batch, *slots)
+                            : fast_ != nullptr ? fast_->Forward(batch)
+                                               : model_->forward(batch);
+  if (!order.defined()) return {out.label_confidence, out.label_ids};
+  // Invert: output slot i holds input point order[i].
+  return {torch::empty_like(out.label_confidence)
+              .scatter_(1,
+                        order.unsqueeze(-1).expand({b, p, width}),
+                        out.label_confidence),
+          torch::empty_like(out.label_ids).scatter_(1, order, out.label_ids)};
+}
+
 FrameLabels FrameLabeler::Label(const at::Tensor& points_in,
                                 int64_t first_frame,
                                 const LabelSlots* slots) const {
@@ -161,11 +199,9 @@ FrameLabels FrameLabeler::Label(const at::Tensor& points_in,
   FrameLabels result;
   result.label_confidence = torch::empty({frames, p, l + 1}, torch::kFloat);
   result.predicted_ids = torch::empty({frames, p}, torch::kLong);
-  const Rng root(options_.seed);
   const int views = options_.views;
   for (int64_t t0 = 0; t0 < frames; t0 += options_.batch_size) {
-    const int64_t t1 = std::min<int64_t>(frames, t0 + options_.batch_size);
-    const int64_t b = t1 - t0;
+    const int64_t b = std::min<int64_t>(frames - t0, options_.batch_size);
     LabelSlots frame_slots;
     if (slots != nullptr) {
       frame_slots.descriptors = slots->descriptors.narrow(0, t0, b);
@@ -173,48 +209,18 @@ FrameLabels FrameLabeler::Label(const at::Tensor& points_in,
         frame_slots.mask = slots->mask.narrow(0, t0, b);
       }
     }
-    torch::Tensor confidence_sum;
-    torch::Tensor ids;
-    for (int view = 0; view < views; ++view) {
-      torch::Tensor batch = points.narrow(0, t0, b);
-      if (view > 0) {
-        batch =
-            RotateAboutVertical(batch, 2.0 * std::numbers::pi * view / views);
-      }
-      torch::Tensor order;  // network slot -> input point, per frame
-      if (options_.permute && p > 1) {
-        std::vector<int64_t> indices;
-        indices.reserve(static_cast<size_t>(b * p));
-        for (int64_t t = t0; t < t1; ++t) {
-          Rng frame = root.Stream(static_cast<uint64_t>(first_frame + t));
-          if (view > 0) frame = frame.Stream(static_cast<uint64_t>(view));
-          const std::vector<int> perm = frame.Permutation(static_cast<int>(p));
-          indices.insert(indices.end(), perm.begin(), perm.end());
-        }
-        order = torch::tensor(indices, torch::kLong).view({b, p});
-        batch = batch.gather(1, order.unsqueeze(-1).expand({b, p, 3}));
-      }
-      const LabelerOutput out = slots != nullptr
-                                    ? model_->ForwardSlots(batch, frame_slots)
-                                : fast_ != nullptr ? fast_->Forward(batch)
-                                                   : model_->forward(batch);
-      torch::Tensor confidence = out.label_confidence;
-      ids = out.label_ids;
-      if (order.defined()) {
-        // Invert: output slot i holds input point order[i].
-        confidence =
-            torch::empty_like(confidence)
-                .scatter_(
-                    1, order.unsqueeze(-1).expand({b, p, l + 1}), confidence);
-        ids = torch::empty_like(ids).scatter_(1, order, ids);
-      }
-      confidence_sum = view == 0 ? confidence : confidence_sum + confidence;
+    const LabelSlots* view_slots = slots != nullptr ? &frame_slots : nullptr;
+    const torch::Tensor batch = points.narrow(0, t0, b);
+    auto [confidence, ids] = LabelView(batch, first_frame + t0, 0, view_slots);
+    for (int view = 1; view < views; ++view) {
+      confidence += LabelView(batch, first_frame + t0, view, view_slots).first;
     }
     if (views > 1) {
-      confidence_sum.div_(views);
-      ids = confidence_sum.argmax(-1);
+      // The views' mean distribution, and its argmax.
+      confidence.div_(views);
+      ids = confidence.argmax(-1);
     }
-    result.label_confidence.narrow(0, t0, b).copy_(confidence_sum);
+    result.label_confidence.narrow(0, t0, b).copy_(confidence);
     result.predicted_ids.narrow(0, t0, b).copy_(ids);
   }
   const torch::Tensor valid = points.ne(0).any(-1);

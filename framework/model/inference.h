@@ -19,6 +19,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <utility>
 
 namespace soma {
 
@@ -114,6 +115,15 @@ class FrameLabeler {
   const InferenceOptions& options() const { return options_; }
 
  private:
+  /// One view of frames [first_frame, first_frame + B) (`batch`: `B x P x
+  /// 3`, slots `B x L x Q` or null): rotated by 2*pi*view/views about Z,
+  /// permuted, through the network; the label distributions (`B x P x
+  /// (L+1)`, first) and their argmax (`B x P`, second) in input order.
+  std::pair<at::Tensor, at::Tensor> LabelView(const at::Tensor& batch,
+                                              int64_t first_frame,
+                                              int view,
+                                              const LabelSlots* slots) const;
+
   std::shared_ptr<LabelerImpl> model_;
   InferenceOptions options_;
   std::unique_ptr<FastLabeler> fast_;

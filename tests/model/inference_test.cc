@@ -4,11 +4,13 @@
 
 #include "framework/config/node.h"
 #include "framework/core/error.h"
+#include "framework/model/label_encoder.h"
 #include "framework/model/labeler.h"
 
 #include <gtest/gtest.h>
 #include <torch/torch.h>
 
+#include "tests/model/conditioned_labeler.h"
 #include <numbers>
 #include <string>
 #include <vector>
@@ -272,6 +274,45 @@ TEST(FrameLabeler, OneViewIsTheDefaultAndViewsIgnoreTheBatchSplit) {
       FrameLabeler(model.ptr(), two).Label(points.narrow(0, 2, 3), 2);
   EXPECT_TRUE(torch::allclose(
       tail.label_confidence, c.label_confidence.narrow(0, 2, 3), 1e-6, 1e-7));
+}
+
+TEST(FrameLabeler, ViewsOfAConditionedLabelerShareEachFramesSlots) {
+  Labeler model = testing::SmallConditionedLabeler(5);
+  model->eval();
+  const torch::Tensor points = Points(6, 9);
+  torch::manual_seed(3);
+  const LabelSlots slots{
+      torch::randn({6, 5, testing::kConditionedDescriptorWidth}), {}};
+  InferenceOptions one;
+  one.permute = false;
+  one.batch_size = 4;
+  InferenceOptions three = one;
+  three.views = 3;
+  const FrameLabels ensemble =
+      FrameLabeler(model.ptr(), three).Label(points, 0, &slots);
+  torch::Tensor mean = torch::zeros({6, 9, 6});
+  for (int view = 0; view < 3; ++view) {
+    mean +=
+        FrameLabeler(model.ptr(), one)
+            .Label(RotateAboutVertical(points, 2 * std::numbers::pi * view / 3),
+                   0,
+                   &slots)
+            .label_confidence;
+  }
+  EXPECT_TRUE(torch::allclose(ensemble.label_confidence, mean / 3, 1e-5, 1e-6));
+  // With permutations, the batch split still does not matter.
+  InferenceOptions permuted = three;
+  permuted.permute = true;
+  InferenceOptions permuted_batched = permuted;
+  permuted_batched.batch_size = 6;
+  EXPECT_TRUE(torch::allclose(FrameLabeler(model.ptr(), permuted)
+                                  .Label(points, 0, &slots)
+                                  .label_confidence,
+                              FrameLabeler(model.ptr(), permuted_batched)
+                                  .Label(points, 0, &slots)
+                                  .label_confidence,
+                              1e-5,
+                              1e-6));
 }
 
 TEST(FrameLabeler, OptionsAndShapes) {
