@@ -628,6 +628,30 @@ TEST(ResultsTest, ReadmeQuotesTheRestOffsetBiasAsItsReportSaysIt) {
   EXPECT_EQ(gaps, 2) << "the biased model's two HDM05 claims";
 }
 
+// Twice the epochs and eight rotated views (results/any_layout_views/): the
+// README quotes the 120-epoch conditioned model on each take and both
+// models with eight views on HDM05, and the gaps of item 3's claims for
+// them.
+TEST(ResultsTest, ReadmeQuotesTheLongerTrainingAndTheViewsAsTheirReportSays) {
+  const std::string dir = "results/any_layout_views/";
+  const std::string longer = "any_layout_perturbed8r_fourier_ema_120";
+  const std::string averaged = "any_layout_perturbed8r_fourier_ema_60";
+  ExpectReadmeQuotesBoldAccuracies(dir + "any_layout.csv",
+                                   {{longer, "hdm05_matching"},
+                                    {longer, "cmu_matching"},
+                                    {longer, "pig_matching"},
+                                    {averaged, "hdm05_views8"},
+                                    {"hdm05_layout_60_ema", "hdm05_views8"}});
+  const int gaps = ExpectReadmeQuotesClaimGaps(
+      dir + "any_layout_claims.csv", [&](const CsvRow& row) {
+        return row.at("kind") == "not_behind" &&
+               (row.at("worse") == longer ||
+                row.at("better_test") == "hdm05_views8");
+      });
+  EXPECT_EQ(gaps, 4) << "the 120-epoch model's three item-3 claims and the "
+                        "eight-view HDM05 claim";
+}
+
 TEST(ResultsTest, ResultsReadmeQuotesTheFiguresAsTheirReportsSayThem) {
   const std::string readme = ResultsReadme();
   for (const std::string dir :
