@@ -40,6 +40,28 @@ torch::Tensor Points(int64_t frames, int64_t p) {
   return points;
 }
 
+/// The mean of the label distributions of `views` single-view labellings
+/// (`options`, which must have one view) of `points` rotated by 2*pi*v/views
+/// about Z: what FrameLabeler with `views` views should give.
+torch::Tensor MeanOfRotatedViews(const Labeler& model,
+                                 const InferenceOptions& options,
+                                 const torch::Tensor& points,
+                                 int views,
+                                 const LabelSlots* slots = nullptr) {
+  torch::Tensor sum;
+  for (int view = 0; view < views; ++view) {
+    const torch::Tensor confidence =
+        FrameLabeler(model.ptr(), options)
+            .Label(RotateAboutVertical(points,
+                                       2 * std::numbers::pi * view / views),
+                   0,
+                   slots)
+            .label_confidence;
+    sum = view == 0 ? confidence.clone() : sum + confidence;
+  }
+  return sum / views;
+}
+
 TEST(ResolveDuplicateLabels, AllClaimantsOfARealLabelBecomeNull) {
   const int64_t l = 4;  // null = 4
   const torch::Tensor ids = torch::tensor({0,
@@ -224,15 +246,10 @@ TEST(FrameLabeler, ViewsAverageTheDistributionsOfRotatedFrames) {
   three.views = 3;
   three.decode = LabelDecode::kMatching;
   const FrameLabels ensemble = FrameLabeler(model.ptr(), three).Label(points);
-  torch::Tensor mean = torch::zeros({6, 10, 6});
-  for (int view = 0; view < 3; ++view) {
-    mean +=
-        FrameLabeler(model.ptr(), one)
-            .Label(RotateAboutVertical(points, 2 * std::numbers::pi * view / 3))
-            .label_confidence;
-  }
-  mean /= 3;
-  EXPECT_TRUE(torch::allclose(ensemble.label_confidence, mean, 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(ensemble.label_confidence,
+                              MeanOfRotatedViews(model, one, points, 3),
+                              1e-5,
+                              1e-6));
   EXPECT_TRUE(torch::equal(ensemble.predicted_ids,
                            ensemble.label_confidence.argmax(-1)));
   const torch::Tensor valid = points.ne(0).any(-1);
@@ -290,16 +307,10 @@ TEST(FrameLabeler, ViewsOfAConditionedLabelerShareEachFramesSlots) {
   three.views = 3;
   const FrameLabels ensemble =
       FrameLabeler(model.ptr(), three).Label(points, 0, &slots);
-  torch::Tensor mean = torch::zeros({6, 9, 6});
-  for (int view = 0; view < 3; ++view) {
-    mean +=
-        FrameLabeler(model.ptr(), one)
-            .Label(RotateAboutVertical(points, 2 * std::numbers::pi * view / 3),
-                   0,
-                   &slots)
-            .label_confidence;
-  }
-  EXPECT_TRUE(torch::allclose(ensemble.label_confidence, mean / 3, 1e-5, 1e-6));
+  EXPECT_TRUE(torch::allclose(ensemble.label_confidence,
+                              MeanOfRotatedViews(model, one, points, 3, &slots),
+                              1e-5,
+                              1e-6));
   // With permutations, the batch split still does not matter.
   InferenceOptions permuted = three;
   permuted.permute = true;
